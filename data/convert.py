@@ -48,7 +48,7 @@ def main(src: Path) -> None:
     # imu_tk Xsens -----------------------------------------------------------------------
     s, d = src / "imu_tk_xsens_multipos", HERE / "imu_tk_xsens_multipos"
     d.mkdir(exist_ok=True)
-    rec = readers.read("imu_tk", [s / "xsens_acc.mat", s / "xsens_gyro.mat"])
+    rec = readers.read_dict("imu_tk", [s / "xsens_acc.mat", s / "xsens_gyro.mat"])
     readers.save_npz(rec, d / "xsens.npz")
     head(s / "xsens_acc.mat", d / "xsens_acc_head.txt")
     head(s / "xsens_gyro.mat", d / "xsens_gyro_head.txt")
@@ -62,10 +62,10 @@ def main(src: Path) -> None:
     # imucal -------------------------------------------------------------------------------
     s, d = src / "imucal_ferraris_example", HERE / "imucal_ferraris_example"
     d.mkdir(exist_ok=True)
-    sess = readers.read("imucal", [s / "example_ferraris_session.csv", s / "example_ferraris_session_list.json"],
+    sess = readers.read_dict("imucal", [s / "example_ferraris_session.csv", s / "example_ferraris_session_list.json"],
                         fs=102.4, acc_unit="m/s^2", gyr_unit="deg/s")
     readers.save_npz(sess, d / "session.npz")
-    ann = readers.read("imucal", [s / "annotated_session.csv"], fs=204.8)
+    ann = readers.read_dict("imucal", [s / "annotated_session.csv"], fs=204.8)
     readers.save_npz(ann, d / "annotated.npz")
     for f in ("example_cal.json", "example_ferraris_session_list.json"):
         shutil.copyfile(s / f, d / f)
@@ -89,7 +89,7 @@ def main(src: Path) -> None:
     names = {"example_data_calibration.csv": "calibration.npz", "example_data_tinit_calc.csv": "tinit_calc.npz",
              "imu_static_test.csv": "static_test.npz", "imu_90_x_rot.csv": "rot90x.npz"}
     for f, out in names.items():
-        r = readers.read("mpu6050", [s / f])
+        r = readers.read_dict("mpu6050", [s / f])
         r["acc"], r["gyr"] = r["acc"].astype("int16"), r["gyr"].astype("int16")
         readers.save_npz(r, d / out)
     head(s / "example_data_calibration.csv", d / "example_data_calibration_head.csv")
@@ -107,22 +107,22 @@ def main(src: Path) -> None:
     # TUM-VI -------------------------------------------------------------------------------
     s, d = src / "tumvi_room1_512_16", HERE / "tumvi_room1_512_16"
     d.mkdir(exist_ok=True)
-    r = readers.read("tumvi", [s / "dataset-room1_512_16.csv", s / "dataset-room1_512_16_gt.csv"])
+    r = readers.read_dict("tumvi", [s / "dataset-room1_512_16.csv", s / "dataset-room1_512_16_gt.csv"])
     readers.save_npz(r, d / "room1.npz")
     head(s / "dataset-room1_512_16.csv", d / "imu_head.csv")
     head(s / "dataset-room1_512_16_gt.csv", d / "gt_head.csv")
     readme(s, d, f"""
 - `room1.npz`: IMU ({len(r['t'])} samples) in g (m/s^2 / 9.80665) and rad/s, float32; `t` in s from
   the first IMU sample (`t0` = its Unix time); motion capture interpolated to the IMU times as
-  `pos_ref` (m) and `quat_ref` (**scalar first**, re-ordered from the ROS x, y, z, w; slerp; NaN
-  across mocap gaps over 50 ms), and the original 120 Hz track as `gt_t`, `gt_pos`, `gt_quat`.
+  `pos_ref` (m) and `quat_ref` (**scalar first**, re-ordered from the ROS x, y, z, w; slerp; held at the
+  ends; `ref_valid` False outside the track and across mocap gaps over 50 ms), and the original 120 Hz track as `gt_t`, `gt_pos`, `gt_quat`.
 - `imu_head.csv`, `gt_head.csv`: the first {HEAD_LINES} lines of the two CSVs, byte for byte.
 """)
 
     # x-io Fusion --------------------------------------------------------------------------
     s, d = src / "xio_fusion_sensor_data", HERE / "xio_fusion_sensor_data"
     d.mkdir(exist_ok=True)
-    r = readers.read("fusion", [s / "sensor_data.csv"])
+    r = readers.read_dict("fusion", [s / "sensor_data.csv"])
     readers.save_npz(r, d / "sensor_data.npz")
     head(s / "sensor_data.csv", d / "sensor_data_head.csv")
     readme(s, d, f"""

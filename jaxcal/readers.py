@@ -10,8 +10,9 @@ Every reader returns a plain ``dict`` of numpy arrays keyed by the conventions' 
   ``seq``, ``static``, and format-specific extras (``mag`` in uT, ``section`` ids with
   ``section_names``, ``meta_*`` header values).
 
-:func:`read` dispatches on a format name (``jaxcal import FORMAT FILES...``); the per-format
-functions are public too. Units are never guessed silently: a unit is taken from the caller or from
+:func:`read_dict` dispatches on a format name; :func:`read` does the same and returns a validated
+:class:`jaxcal.recording.Recording` (``jaxcal import FORMAT FILES...``). The per-format functions
+are public too. Units are never guessed silently: a unit is taken from the caller or from
 the header (``Name (unit)`` / ``Name [unit]``), and an unknown, conflicting or implausible unit
 raises :class:`ReaderError` naming the file, the column and the reason.
 
@@ -358,14 +359,14 @@ def _quat_columns_xyzw_to_wxyz(q_xyzw: np.ndarray) -> np.ndarray:
 
 
 def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
-    """Quaternion (scalar first) slerp of a pose track onto new times (NaN outside)."""
+    """Quaternion (scalar first) slerp of a pose track onto new times (held at the ends)."""
     q_src = q_src.copy()
     # make consecutive quaternions share a hemisphere
     for i in range(1, len(q_src)):
         if np.dot(q_src[i], q_src[i - 1]) < 0:
             q_src[i] = -q_src[i]
     j = np.clip(np.searchsorted(t_src, t_dst) - 1, 0, len(t_src) - 2)
-    u = ((t_dst - t_src[j]) / (t_src[j + 1] - t_src[j]))[:, None]
+    u = np.clip((t_dst - t_src[j]) / (t_src[j + 1] - t_src[j]), 0.0, 1.0)[:, None]
     q0, q1 = q_src[j], q_src[j + 1]
     d = np.clip(np.sum(q0 * q1, axis=1, keepdims=True), -1.0, 1.0)
     th = np.arccos(d)
@@ -374,22 +375,23 @@ def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.nda
     w0 = np.where(small, 1 - u, np.sin((1 - u) * th) / np.where(small, 1, s))
     w1 = np.where(small, u, np.sin(u * th) / np.where(small, 1, s))
     q = w0 * q0 + w1 * q1
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    out = (t_dst < t_src[0]) | (t_dst > t_src[-1])
-    q[out] = np.nan
-    return q
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
 def _attach_pose(rec: dict[str, Any], t_gt: np.ndarray, pos: np.ndarray, q_wxyz: np.ndarray,
                  max_gap: float) -> None:
-    """Interpolate a pose track to the IMU times; NaN across gaps longer than ``max_gap`` s."""
+    """Interpolate a pose track to the IMU times (linear / slerp, held at the ends).
+
+    ``ref_valid`` (N,) bool marks IMU samples inside the track and not across a gap longer than
+    ``max_gap`` s; elsewhere the pose is only the nearest held value. The original track is kept
+    as ``gt_t``, ``gt_pos``, ``gt_quat``.
+    """
     t = rec["t"]
-    rec["pos_ref"] = np.stack([np.interp(t, t_gt, pos[:, k], left=np.nan, right=np.nan) for k in range(3)], -1)
+    rec["pos_ref"] = np.stack([np.interp(t, t_gt, pos[:, k]) for k in range(3)], -1)
     rec["quat_ref"] = _slerp_to(t_gt, q_wxyz, t)
     j = np.clip(np.searchsorted(t_gt, t) - 1, 0, len(t_gt) - 2)
     gap = (t_gt[j + 1] - t_gt[j]) > max_gap
-    rec["pos_ref"][gap] = np.nan
-    rec["quat_ref"][gap] = np.nan
+    rec["ref_valid"] = ~gap & (t >= t_gt[0]) & (t <= t_gt[-1])
     rec["gt_t"], rec["gt_pos"], rec["gt_quat"] = t_gt, pos, q_wxyz
 
 
@@ -417,7 +419,7 @@ def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max
     ``p_RS_R_x [m],...,q_RS_w [],q_RS_x [],...`` (quaternion **scalar first**, body to world).
     Time is converted from ns to s (relative times keep float64 precision: ``t`` counts from the
     first IMU sample, ``t0_ns`` keeps the offset). Poses are interpolated to IMU times
-    (``pos_ref``, ``quat_ref``; NaN across gaps over ``max_gap`` s).
+    (``pos_ref``, ``quat_ref``; ``ref_valid`` is False across gaps over ``max_gap`` s).
     """
     imu_path = Path(imu_path)
     header, rows = _read_table(imu_path)
@@ -552,7 +554,17 @@ def read_fusion(path: str | Path) -> dict[str, Any]:
     return read_generic_csv(path, cols)
 
 
-def read(format: str, files: Sequence[str | Path], **options: Any) -> dict[str, Any]:
+def read(format: str, files: Sequence[str | Path], **options: Any):
+    """Read ``files`` in ``format`` into a validated :class:`jaxcal.recording.Recording`.
+
+    Same arguments as :func:`read_dict`; format-specific extras go to ``Recording.extra``.
+    """
+    from jaxcal.recording import recording_from_dict
+
+    return recording_from_dict(read_dict(format, files, **options), source=str(files[0]) if files else "")
+
+
+def read_dict(format: str, files: Sequence[str | Path], **options: Any) -> dict[str, Any]:
     """Read ``files`` in ``format`` (one of :data:`FORMATS`) into a recording dict.
 
     ``imu_tk``: ``[acc_file, gyr_file]``; ``imucal``: ``[csv]`` or ``[csv, sections.json]``

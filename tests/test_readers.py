@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from jaxcal import readers
-from jaxcal.readers import ReaderError, read
+from jaxcal.readers import ReaderError, read_dict as read
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 G0 = 9.80665
@@ -95,8 +95,8 @@ def test_tumvi_quaternion_order_and_units():
     np.testing.assert_allclose(rec["gt_quat"][0], [0.9996498117006686, 0.0037373092773871,
                                                    0.00971696346904, -0.024328319036143], atol=1e-9)
     q = rec["quat_ref"]
-    ok = np.isfinite(q[:, 0])
-    assert ok.mean() > 0.9 and np.isnan(q[0, 0])  # gt starts 7.8 ms after the IMU
+    ok = rec["ref_valid"]
+    assert ok.mean() > 0.9 and not ok[0]  # gt starts 7.8 ms after the IMU
     np.testing.assert_allclose(np.linalg.norm(q[ok], axis=1), 1.0, atol=1e-9)
     assert np.all(q[ok, 0] > 0.99)  # near identity at the start, scalar first
 
@@ -197,3 +197,13 @@ def test_compact_data_files_follow_conventions(name):
     assert rec["t"].dtype == np.float64 and np.all(np.diff(rec["t"]) > 0)
     assert rec["acc"].shape == (n, 3) and rec["gyr"].shape == (n, 3)
     assert rec["acc_unit"] in ("g", "LSB") and rec["gyr_unit"] in ("rad/s", "LSB")
+
+
+def test_read_returns_validated_recording():
+    from jaxcal.readers import read as read_rec
+    from jaxcal.recording import Recording
+
+    d = DATA / "tumvi_room1_512_16"
+    rec = read_rec("tumvi", [d / "imu_head.csv", d / "gt_head.csv"])
+    assert isinstance(rec, Recording) and rec.acc_unit == "g" and rec.quat_ref.shape == (rec.n, 4)
+    assert rec.extra["gt_quat"].shape[1] == 4
