@@ -1,0 +1,550 @@
+"""IMU recordings on disk: the ``.npz`` / ``.csv`` (+ ``.json`` sidecar) format of CONVENTIONS.md.
+
+A recording is a set of named arrays sharing one sample axis of length ``N``:
+
+=================  =========  =======================================================
+key                shape      meaning (units)
+=================  =========  =======================================================
+``t``              (N,)       sample times (s), strictly increasing; required
+``acc``            (N, 3)     accelerometer output (LSB, or g if ``acc_unit == "g"``)
+``gyr``            (N, 3)     gyroscope output (LSB, or rad/s if ``gyr_unit == "rad/s"``)
+``temp``           (N,)       temperature (degC)
+``seq``            (N,)       integer sequence id; the samples of one id are contiguous
+``static``         (N,)       bool, sample known to be stationary
+``acc_ref``        (N, 3)     reference specific force (g), body frame
+``gyr_ref``        (N, 3)     reference body rate (rad/s)
+``pos_ref``        (N, 3)     reference position (m)
+``quat_ref``       (N, 4)     reference attitude, Hamilton [w, x, y, z], body to world
+``fs``             scalar     nominal sample rate (Hz)
+``acc_lsb_per_g``  () or (3,) datasheet accelerometer scale (LSB/g)
+``acc_bias_lsb``   () or (3,) datasheet accelerometer bias (LSB)
+``gyr_lsb_per_rads`` () or (3,) datasheet gyroscope scale (LSB/(rad/s))
+``gyr_bias_lsb``   () or (3,) datasheet gyroscope bias (LSB)
+``acc_unit``       str        ``"LSB"`` (default) or ``"g"``
+``gyr_unit``       str        ``"LSB"`` (default) or ``"rad/s"``
+=================  =========  =======================================================
+
+At least one of ``acc`` and ``gyr`` must be present. Keys not in this table are kept in
+:attr:`Recording.extra` and written back out (never silently dropped).
+
+CSV layout: a header row, then one row per sample, columns ``t, acc_x, acc_y, acc_z, gyr_x,
+gyr_y, gyr_z`` then any of ``temp, seq, static, acc_ref_x..z, gyr_ref_x..z, pos_ref_x..z,
+quat_ref_w, quat_ref_x, quat_ref_y, quat_ref_z``. Scalar metadata (``fs``, spec values, units,
+scalar extras) lives in a sidecar ``<stem>.json`` next to the ``.csv``. Unknown per-sample
+columns are kept as extra arrays (``foo_x, foo_y, foo_z`` as one ``(N, 3)`` array ``foo``).
+
+This is the only I/O module of the library besides :mod:`jaxcal.model_io`; all functions take
+explicit paths. Any problem with a file raises :class:`RecordingError` whose one-line message
+names the file, the key or column, and the row.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = [
+    "ACC_UNITS",
+    "GYR_UNITS",
+    "Recording",
+    "RecordingError",
+    "load_recording",
+    "save_recording",
+    "validate_recording",
+    "sequence_slices",
+]
+
+ACC_UNITS = ("LSB", "g")
+GYR_UNITS = ("LSB", "rad/s")
+
+# Per-sample arrays: name -> trailing shape (() for (N,)) and CSV component suffixes.
+_VECTOR_KEYS: dict[str, tuple[str, ...]] = {
+    "acc": ("x", "y", "z"),
+    "gyr": ("x", "y", "z"),
+    "acc_ref": ("x", "y", "z"),
+    "gyr_ref": ("x", "y", "z"),
+    "pos_ref": ("x", "y", "z"),
+    "quat_ref": ("w", "x", "y", "z"),
+}
+_SAMPLE_SCALAR_KEYS = ("temp", "seq", "static")
+_META_SCALAR_KEYS = ("fs",)
+_META_SPEC_KEYS = ("acc_lsb_per_g", "acc_bias_lsb", "gyr_lsb_per_rads", "gyr_bias_lsb")
+_UNIT_KEYS = ("acc_unit", "gyr_unit")
+# Column order of a written CSV.
+_CSV_ORDER = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref")
+
+KNOWN_KEYS = (
+    ("t",) + tuple(_VECTOR_KEYS) + _SAMPLE_SCALAR_KEYS + _META_SCALAR_KEYS + _META_SPEC_KEYS + _UNIT_KEYS
+)
+
+
+class RecordingError(ValueError):
+    """A recording file or object is invalid; the message is one line saying what and where."""
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """One IMU recording (numpy arrays; optional fields are ``None``). See the module docstring.
+
+    Construct directly (then call :func:`validate_recording`) or with :func:`load_recording`.
+    """
+
+    t: np.ndarray
+    acc: np.ndarray | None = None
+    gyr: np.ndarray | None = None
+    temp: np.ndarray | None = None
+    seq: np.ndarray | None = None
+    static: np.ndarray | None = None
+    acc_ref: np.ndarray | None = None
+    gyr_ref: np.ndarray | None = None
+    pos_ref: np.ndarray | None = None
+    quat_ref: np.ndarray | None = None
+    fs: float | None = None
+    acc_lsb_per_g: np.ndarray | None = None
+    acc_bias_lsb: np.ndarray | None = None
+    gyr_lsb_per_rads: np.ndarray | None = None
+    gyr_bias_lsb: np.ndarray | None = None
+    acc_unit: str = "LSB"
+    gyr_unit: str = "LSB"
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        """Number of samples ``N``."""
+        return int(np.shape(self.t)[0])
+
+    def sensors(self) -> tuple[str, ...]:
+        """The sensors present, in the order ``("acc", "gyr")``."""
+        return tuple(s for s in ("acc", "gyr") if getattr(self, s) is not None)
+
+    def replace(self, **changes: Any) -> "Recording":
+        """A copy with some fields replaced (``dataclasses.replace``)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """All present fields (and extras) as a flat ``name -> value`` dict."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            if f.name == "extra":
+                continue
+            v = getattr(self, f.name)
+            if v is not None:
+                out[f.name] = v
+        out.update(self.extra)
+        return out
+
+
+# ----------------------------------------------------------------------------- construction
+
+
+def _fail(source: str, msg: str) -> RecordingError:
+    text = f"{source}: {msg}" if source else msg
+    return RecordingError(" ".join(text.split("\n")))
+
+
+def _as_str(v: Any) -> str:
+    a = np.asarray(v)
+    if a.shape != ():
+        raise TypeError("not a scalar string")
+    return str(a.item())
+
+
+def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: bool = False) -> Recording:
+    """Build and validate a :class:`Recording` from a ``name -> array`` mapping.
+
+    Known names go to their fields; unknown ones to ``extra``. Raises :class:`RecordingError`.
+    """
+    kw: dict[str, Any] = {}
+    extra: dict[str, np.ndarray] = {}
+    for k, v in d.items():
+        if k in _UNIT_KEYS:
+            try:
+                kw[k] = _as_str(v)
+            except TypeError:
+                raise _fail(source, f"key '{k}': expected a unit string, got shape {np.shape(v)}") from None
+        elif k == "fs":
+            a = np.asarray(v)
+            if a.shape != () or not np.issubdtype(a.dtype, np.number):
+                raise _fail(source, f"key 'fs': expected a scalar sample rate in Hz, got shape {a.shape}")
+            kw[k] = float(a)
+        elif k in KNOWN_KEYS:
+            kw[k] = np.asarray(v)
+        else:
+            extra[k] = np.asarray(v)
+    if "t" not in kw:
+        raise _fail(source, "missing required key 't' (sample times in s)")
+    rec = Recording(**kw, extra=extra)
+    validate_recording(rec, source, csv_rows=csv_rows)
+    return rec
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _row_text(i: int, csv_rows: bool) -> str:
+    return f"row {i} (line {i + 2})" if csv_rows else f"row {i}"
+
+
+def _check_numeric(source: str, name: str, a: np.ndarray) -> None:
+    if not (np.issubdtype(a.dtype, np.number) or a.dtype == np.bool_):
+        raise _fail(source, f"key '{name}': expected numbers, got dtype {a.dtype}")
+
+
+def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = False) -> None:
+    """Check a recording against CONVENTIONS.md; raise :class:`RecordingError` on the first problem.
+
+    Checks: ``t`` present, 1-D, finite, strictly increasing; ``acc`` or ``gyr`` present; every
+    per-sample key has ``N`` rows and the right trailing shape and is finite; units known;
+    ``seq`` integer-valued with contiguous ids; ``static`` boolean; metadata scalar or (3,),
+    finite, scales non-zero, ``fs`` positive.
+
+    Args:
+        rec: the recording.
+        source: file name (or other label) put in front of the message.
+        csv_rows: also give the CSV line number (header = line 1) next to each row index.
+    """
+    t = rec.t
+    if t is None:
+        raise _fail(source, "missing required key 't' (sample times in s)")
+    t = np.asarray(t)
+    _check_numeric(source, "t", t)
+    if t.ndim != 1:
+        raise _fail(source, f"key 't': expected shape (N,), got {t.shape}")
+    n = t.shape[0]
+    if n == 0:
+        raise _fail(source, "key 't': recording has no samples")
+    if rec.acc is None and rec.gyr is None:
+        raise _fail(source, "neither 'acc' nor 'gyr' present: a recording needs at least one sensor")
+    bad = np.flatnonzero(~np.isfinite(t.astype(np.float64)))
+    if bad.size:
+        raise _fail(source, f"key 't' {_row_text(int(bad[0]), csv_rows)}: non-finite value {t[bad[0]]}")
+    dec = np.flatnonzero(np.diff(t) <= 0)
+    if dec.size:
+        i = int(dec[0]) + 1
+        raise _fail(
+            source,
+            f"key 't' {_row_text(i, csv_rows)}: times not strictly increasing "
+            f"(t[{i - 1}] = {t[i - 1]!r}, t[{i}] = {t[i]!r})",
+        )
+
+    def per_sample(name: str, trailing: tuple[int, ...]) -> None:
+        v = getattr(rec, name)
+        if v is None:
+            return
+        a = np.asarray(v)
+        _check_numeric(source, name, a)
+        want = "(N,)" if not trailing else f"(N, {trailing[0]})"
+        if a.ndim != 1 + len(trailing) or a.shape[1:] != trailing:
+            raise _fail(source, f"key '{name}': expected shape {want}, got {a.shape}")
+        if a.shape[0] != n:
+            raise _fail(source, f"key '{name}': length {a.shape[0]} does not match len(t) = {n}")
+        fin = np.isfinite(a.astype(np.float64))
+        if not fin.all():
+            i, *rest = np.argwhere(~fin)[0]
+            if rest and csv_rows:
+                label = f"column '{name}_{_VECTOR_KEYS[name][rest[0]]}'"
+            elif rest:
+                label = f"key '{name}' column {rest[0]}"
+            else:
+                label = f"{'column' if csv_rows else 'key'} '{name}'"
+            raise _fail(source, f"{label} {_row_text(int(i), csv_rows)}: non-finite value")
+
+    for name, comps in _VECTOR_KEYS.items():
+        per_sample(name, (len(comps),))
+    for name in _SAMPLE_SCALAR_KEYS:
+        per_sample(name, ())
+
+    if rec.seq is not None:
+        s = np.asarray(rec.seq)
+        if not np.all(s == np.round(s)):
+            i = int(np.flatnonzero(s != np.round(s))[0])
+            raise _fail(source, f"key 'seq' {_row_text(i, csv_rows)}: sequence id {s[i]} is not an integer")
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(s) != 0) + 1])
+        ids = s[starts]
+        _, first = np.unique(ids, return_index=True)
+        if first.size != ids.size:
+            dup = np.setdiff1d(np.arange(ids.size), first)[0]
+            i = int(starts[dup])
+            raise _fail(
+                source,
+                f"key 'seq' {_row_text(i, csv_rows)}: sequence id {int(s[i])} appears again after "
+                "other ids (samples of one sequence must be contiguous)",
+            )
+    if rec.static is not None:
+        a = np.asarray(rec.static)
+        if a.dtype != np.bool_ and not np.all((a == 0) | (a == 1)):
+            i = int(np.flatnonzero((a != 0) & (a != 1))[0])
+            raise _fail(source, f"key 'static' {_row_text(i, csv_rows)}: expected a boolean (0/1), got {a[i]}")
+
+    if rec.acc_unit not in ACC_UNITS:
+        raise _fail(source, f"key 'acc_unit': unknown unit {rec.acc_unit!r} (expected one of {', '.join(ACC_UNITS)})")
+    if rec.gyr_unit not in GYR_UNITS:
+        raise _fail(source, f"key 'gyr_unit': unknown unit {rec.gyr_unit!r} (expected one of {', '.join(GYR_UNITS)})")
+
+    if rec.fs is not None and not (math.isfinite(rec.fs) and rec.fs > 0):
+        raise _fail(source, f"key 'fs': sample rate must be positive and finite, got {rec.fs}")
+    for name in _META_SPEC_KEYS:
+        v = getattr(rec, name)
+        if v is None:
+            continue
+        a = np.asarray(v)
+        _check_numeric(source, name, a)
+        if a.shape not in ((), (3,)):
+            raise _fail(source, f"key '{name}': expected a scalar or shape (3,), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise _fail(source, f"key '{name}': non-finite value")
+        if name.endswith(("per_g", "per_rads")) and np.any(a == 0):
+            raise _fail(source, f"key '{name}': scale must be non-zero")
+
+
+def sequence_slices(rec: Recording) -> list[slice]:
+    """Sample ranges of the contiguous sequences (one slice over everything if ``seq`` is absent)."""
+    if rec.seq is None:
+        return [slice(0, rec.n)]
+    s = np.asarray(rec.seq)
+    edges = np.concatenate([[0], np.flatnonzero(np.diff(s) != 0) + 1, [s.shape[0]]])
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+# ----------------------------------------------------------------------------- npz
+
+
+def _load_npz(path: Path) -> dict[str, Any]:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: z[k] for k in z.files}
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
+        raise _fail(str(path), f"cannot read as .npz ({type(e).__name__}: {e})") from None
+
+
+def _save_npz(rec: Recording, path: Path) -> None:
+    arrays: dict[str, np.ndarray] = {}
+    for k, v in rec.to_dict().items():
+        arrays[k] = np.asarray(v)
+    with open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+
+
+# ----------------------------------------------------------------------------- csv
+
+
+def _sidecar(path: Path) -> Path:
+    return path.with_suffix(".json")
+
+
+def _json_value(v: Any) -> Any:
+    a = np.asarray(v)
+    if a.dtype.kind in "US":
+        return a.tolist()
+    if a.dtype == np.bool_:
+        return a.tolist()
+    return a.astype(np.float64).tolist() if a.dtype.kind == "f" else a.tolist()
+
+
+def _format_cell(x: Any) -> str:
+    if isinstance(x, (bool, np.bool_)):
+        return "1" if x else "0"
+    if isinstance(x, (int, np.integer)):
+        return str(int(x))
+    return repr(float(x))
+
+
+def _save_csv(rec: Recording, path: Path) -> None:
+    n = rec.n
+    header: list[str] = []
+    columns: list[np.ndarray] = []
+    meta: dict[str, Any] = {}
+    for name in _CSV_ORDER:
+        v = getattr(rec, name)
+        if v is None:
+            continue
+        a = np.asarray(v)
+        if name in _VECTOR_KEYS:
+            for j, c in enumerate(_VECTOR_KEYS[name]):
+                header.append(f"{name}_{c}")
+                columns.append(a[:, j])
+        else:
+            header.append(name)
+            columns.append(a)
+    for name in _META_SCALAR_KEYS + _META_SPEC_KEYS:
+        v = getattr(rec, name)
+        if v is not None:
+            meta[name] = _json_value(v)
+    for name in _UNIT_KEYS:
+        meta[name] = getattr(rec, name)
+    for k, v in rec.extra.items():
+        a = np.asarray(v)
+        if a.ndim == 1 and a.shape[0] == n and a.dtype.kind in "biuf":
+            header.append(k)
+            columns.append(a)
+        elif a.ndim == 2 and a.shape == (n, 3) and a.dtype.kind in "biuf":
+            for j, c in enumerate("xyz"):
+                header.append(f"{k}_{c}")
+                columns.append(a[:, j])
+        else:
+            meta[k] = _json_value(a)
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(header)
+        for i in range(n):
+            w.writerow([_format_cell(c[i]) for c in columns])
+    with open(_sidecar(path), "w") as fh:
+        json.dump(meta, fh, indent=1, sort_keys=True)
+
+
+def _parse_cell(cell: str, src: str, col: str, i: int) -> float:
+    s = cell.strip()
+    low = s.lower()
+    if low in ("true", "false"):
+        return 1.0 if low == "true" else 0.0
+    try:
+        return float(s) if s else math.nan
+    except ValueError:
+        raise _fail(src, f"column '{col}' row {i} (line {i + 2}): cannot parse {cell!r} as a number") from None
+
+
+def _load_csv(path: Path) -> dict[str, Any]:
+    src = str(path)
+    try:
+        with open(path, newline="") as fh:
+            rows = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise _fail(src, f"cannot read as .csv ({type(e).__name__}: {e})") from None
+    rows = [r for r in rows if any(c.strip() for c in r)]
+    if not rows:
+        raise _fail(src, "empty file (expected a header row)")
+    header = [h.strip() for h in rows[0]]
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise _fail(src, f"column '{dup}' appears twice in the header")
+    body = rows[1:]
+    for i, r in enumerate(body):
+        if len(r) != len(header):
+            raise _fail(src, f"row {i} (line {i + 2}): {len(r)} cells, header has {len(header)} columns")
+    try:  # fast path: numpy parses plain numbers
+        data = np.array(body, dtype=np.float64).reshape(len(body), len(header))
+    except ValueError:  # slow path: true/false, empty cells, and a precise error otherwise
+        data = np.empty((len(body), len(header)), dtype=np.float64)
+        for i, r in enumerate(body):
+            for j, c in enumerate(r):
+                data[i, j] = _parse_cell(c, src, header[j], i)
+    col = {h: data[:, j] for j, h in enumerate(header)}
+    out: dict[str, Any] = {}
+    used: set[str] = set()
+    for name, comps in _VECTOR_KEYS.items():
+        names = [f"{name}_{c}" for c in comps]
+        have = [c for c in names if c in col]
+        if not have:
+            continue
+        missing = [c for c in names if c not in col]
+        if missing:
+            raise _fail(src, f"column '{missing[0]}' missing (have {', '.join(have)})")
+        out[name] = np.stack([col[c] for c in names], axis=1)
+        used.update(names)
+    for name in ("t", "temp"):
+        if name in col:
+            out[name] = col[name]
+            used.add(name)
+    if "seq" in col:
+        s = col["seq"]
+        bad = np.flatnonzero(~np.isfinite(s) | (s != np.round(s)))
+        if bad.size:
+            i = int(bad[0])
+            raise _fail(src, f"column 'seq' row {i} (line {i + 2}): sequence id {s[i]} is not an integer")
+        out["seq"] = s.astype(np.int64)
+        used.add("seq")
+    if "static" in col:
+        s = col["static"]
+        bad = np.flatnonzero((s != 0) & (s != 1))
+        if bad.size:
+            i = int(bad[0])
+            raise _fail(src, f"column 'static' row {i} (line {i + 2}): expected 0/1 or true/false, got {s[i]}")
+        out["static"] = s.astype(bool)
+        used.add("static")
+    rest = [h for h in header if h not in used]
+    # Unknown columns: group foo_x/foo_y/foo_z triples into (N, 3) extras.
+    for h in list(rest):
+        if h.endswith("_x"):
+            stem = h[:-2]
+            trip = [f"{stem}_{c}" for c in "xyz"]
+            if all(c in rest for c in trip):
+                out[stem] = np.stack([col[c] for c in trip], axis=1)
+                for c in trip:
+                    rest.remove(c)
+    for h in rest:
+        out[h] = col[h]
+    side = _sidecar(path)
+    if side.exists():
+        try:
+            with open(side) as fh:
+                meta = json.load(fh)
+        except (OSError, ValueError) as e:
+            raise _fail(str(side), f"cannot read JSON sidecar ({type(e).__name__}: {e})") from None
+        if not isinstance(meta, dict):
+            raise _fail(str(side), "JSON sidecar must hold an object of scalar metadata")
+        for k, v in meta.items():
+            if k in out:
+                raise _fail(str(side), f"key '{k}' given both as a CSV column and in the sidecar")
+            if k in _UNIT_KEYS:
+                if not isinstance(v, str):
+                    raise _fail(str(side), f"key '{k}': expected a unit string, got {v!r}")
+                out[k] = v
+            else:
+                try:
+                    out[k] = np.asarray(v)
+                except ValueError:
+                    raise _fail(str(side), f"key '{k}': not a number or list of numbers") from None
+    return out
+
+
+# ----------------------------------------------------------------------------- public API
+
+
+def load_recording(path: str | os.PathLike) -> Recording:
+    """Read and validate a recording (``.npz``, or ``.csv`` with optional ``.json`` sidecar).
+
+    Raises:
+        RecordingError: missing/unreadable file, unknown extension, or any check of
+            :func:`validate_recording` failing; the message names the file, key/column and row.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in (".npz", ".csv"):
+        raise _fail(str(p), f"unknown recording extension {p.suffix!r} (expected .npz or .csv)")
+    if not p.is_file():
+        raise _fail(str(p), "no such file")
+    if ext == ".npz":
+        return recording_from_dict(_load_npz(p), str(p))
+    d = _load_csv(p)
+    if "t" not in d:
+        raise _fail(str(p), "missing required column 't' (sample times in s)")
+    return recording_from_dict(d, str(p), csv_rows=True)
+
+
+def save_recording(rec: Recording, path: str | os.PathLike) -> None:
+    """Validate ``rec`` and write it as ``.npz`` or ``.csv`` (+ ``<stem>.json`` sidecar).
+
+    The format follows the extension. Raises :class:`RecordingError` if ``rec`` is invalid or
+    the extension is unknown.
+    """
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext not in (".npz", ".csv"):
+        raise _fail(str(p), f"unknown recording extension {p.suffix!r} (expected .npz or .csv)")
+    validate_recording(rec, str(p))
+    try:
+        if ext == ".npz":
+            _save_npz(rec, p)
+        else:
+            _save_csv(rec, p)
+    except OSError as e:
+        raise _fail(str(p), f"cannot write ({e.strerror or e})") from None
