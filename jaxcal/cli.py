@@ -1,0 +1,466 @@
+"""The ``jaxcal`` command line (CONVENTIONS.md, "Command line").
+
+::
+
+    jaxcal calibrate --method METHOD RECORDING --out MODEL.npz [--seed N] [...]
+    jaxcal apply MODEL.npz RECORDING --out CALIBRATED.npz
+    jaxcal simulate dataset2 --out DIR [--seed N] [--labels]
+    jaxcal simulate dataset1 --out DIR [--seed N]       (if jaxcal.simulate.dataset1 exists)
+    jaxcal methods
+    jaxcal --version
+
+Subcommands live in the :data:`COMMANDS` table (name -> help, argument builder, handler), so
+later ones (``diagnose``, ``import``) plug in with :func:`register_command`. Exit status: 0 on
+success; 2 on bad input, with exactly one line on stderr that says what is wrong and where (no
+traceback). Progress lines of long fits go to stderr (silence them with ``--quiet``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, NamedTuple, Sequence
+
+import numpy as np
+
+from jaxcal import __version__
+from jaxcal.recording import Recording, RecordingError, load_recording, save_recording
+
+PROG = "jaxcal"
+
+
+class UsageError(Exception):
+    """Bad command-line input; printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage block) that main() turns into exit status 2."""
+
+    def error(self, message: str):  # noqa: D401 - argparse API
+        raise UsageError(f"{self.prog}: error: {message}")
+
+
+class Command(NamedTuple):
+    """A subcommand: one-line help, a function adding its arguments, and its handler."""
+
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    description: str = ""
+
+
+COMMANDS: dict[str, Command] = {}
+
+
+def register_command(name: str, command: Command) -> None:
+    """Add a subcommand to the ``jaxcal`` CLI (e.g. ``diagnose``, ``import``)."""
+    COMMANDS[name] = command
+
+
+def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
+    if getattr(args, "quiet", False):
+        return None
+    return lambda msg: print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
+
+
+# ----------------------------------------------------------------------------- calibrate
+
+
+def _int_tuple(text: str) -> tuple[int, ...]:
+    try:
+        vals = tuple(int(v) for v in text.replace(",", " ").split())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+    if not vals or any(v <= 0 for v in vals):
+        raise argparse.ArgumentTypeError(f"expected positive layer widths, got {text!r}")
+    return vals
+
+
+def _sensors(text: str) -> tuple[str, ...]:
+    vals = tuple(v for v in text.replace(",", " ").split())
+    bad = [v for v in vals if v not in ("acc", "gyr")]
+    if not vals or bad:
+        raise argparse.ArgumentTypeError(f"expected acc, gyr or acc,gyr, got {text!r}")
+    return vals
+
+
+def _add_calibrate(p: argparse.ArgumentParser) -> None:
+    from jaxcal.model_io import method_names
+
+    p.add_argument("recording", metavar="RECORDING", help="recording (.npz or .csv; see CONVENTIONS.md)")
+    p.add_argument(
+        "--method",
+        required=True,
+        choices=method_names(),
+        help="linear | nn (need acc_ref/gyr_ref labels), online-thesis | online (self-calibration from "
+        "rotation sequences; need datasheet values in the metadata), multipos (static poses joined by "
+        "rotations); `jaxcal methods` lists what this build has",
+    )
+    p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
+    p.add_argument("--seed", type=int, default=0, help="PRNG seed (NN initial weights etc.; default 0)")
+    p.add_argument("--sensors", type=_sensors, default=None, help="calibrate only these: acc, gyr or acc,gyr")
+    g = p.add_argument_group("nn options")
+    g.add_argument("--widths", type=_int_tuple, default=(7500,), help="hidden widths, e.g. 7500 or 5,10,5 (default 7500)")
+    g.add_argument("--slope", type=float, default=0.1, help="leaky-ReLU slope (default 0.1)")
+    g.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
+    g.add_argument("--patience", type=int, default=200, help="early-stopping patience in epochs (default 200)")
+    g.add_argument("--max-epochs", type=int, default=5000, help="maximum full-batch epochs (default 5000)")
+    g.add_argument(
+        "--val-fraction",
+        type=float,
+        default=0.15,
+        help="share of labelled samples held out for early stopping, whole sequences if `seq` is given (default 0.15)",
+    )
+    g.add_argument("--acc-range", type=float, default=2.0, help="accelerometer full scale in g for eq. 3.6 bounds (default 2)")
+    g.add_argument(
+        "--gyr-range", type=float, default=250.0, help="gyroscope full scale in deg/s for eq. 3.6 bounds (default 250)"
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
+    import math
+
+    from jaxcal.model_io import FitOptions, fit_model, get_method, save_model
+
+    if not args.out.lower().endswith(".npz"):
+        raise UsageError(f"--out {args.out}: model files are .npz")
+    if args.max_epochs < 1 or args.patience < 1:
+        raise UsageError("--max-epochs and --patience must be at least 1")
+    if not 0.0 < args.val_fraction < 1.0:
+        raise UsageError(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
+    get_method(args.method)  # unavailable method: fail before reading data
+    rec = load_recording(args.recording)
+    log = _progress(args)
+    options = FitOptions(
+        seed=args.seed,
+        sensors=args.sensors,
+        widths=args.widths,
+        slope=args.slope,
+        learning_rate=args.lr,
+        patience=args.patience,
+        max_epochs=args.max_epochs,
+        val_fraction=args.val_fraction,
+        acc_range=args.acc_range,
+        gyr_range=args.gyr_range * math.pi / 180.0,
+        log=log,
+    )
+    t0 = time.perf_counter()
+    model = fit_model(args.method, rec, options)
+    save_model(model, args.out)
+    if log:
+        log(f"wrote {args.out} ({args.method}, sensors {','.join(model.sensors)}) in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+# ----------------------------------------------------------------------------- apply
+
+
+def _add_apply(p: argparse.ArgumentParser) -> None:
+    p.add_argument("model", metavar="MODEL", help="model file written by `jaxcal calibrate`")
+    p.add_argument("recording", metavar="RECORDING", help="recording to calibrate (.npz or .csv)")
+    p.add_argument(
+        "--out", required=True, metavar="OUT.npz", help="output: t, and acc_cal (g) and/or gyr_cal (rad/s)"
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def _run_apply(args: argparse.Namespace) -> int:
+    from jaxcal.model_io import load_model
+
+    if not args.out.lower().endswith(".npz"):
+        raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
+    model = load_model(args.model)
+    rec = load_recording(args.recording)
+    out = model.apply(rec)
+    try:
+        with open(args.out, "wb") as fh:
+            np.savez_compressed(fh, t=np.asarray(rec.t), **out)
+    except OSError as e:
+        raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
+    log = _progress(args)
+    if log:
+        log(f"wrote {args.out}: {', '.join(out)} for {rec.n} samples")
+    return 0
+
+
+# ----------------------------------------------------------------------------- simulate
+
+
+def _dataset2_recordings(seed: int, config: Any, labels: bool) -> tuple[dict[str, Recording], dict[str, Any]]:
+    """Dataset 2 as recordings: train/val (sequences concatenated), test_acc, test_gyr; + truth."""
+    import jax
+
+    from jaxcal.simulate import dataset2
+
+    ds = jax.jit(dataset2, static_argnums=1)(jax.random.PRNGKey(seed), config)  # one compile (cached)
+    fs = float(config.fs)
+    spec = dict(
+        fs=fs,
+        acc_lsb_per_g=np.asarray(config.acc_lsb_per_g, np.float64),
+        acc_bias_lsb=np.asarray(0.0),
+        gyr_lsb_per_rads=np.asarray(config.gyr_lsb_per_rads, np.float64),
+        gyr_bias_lsb=np.asarray(0.0),
+    )
+
+    def raw(a: Any) -> np.ndarray:
+        a = np.asarray(a)
+        return a.astype(np.int32) if config.round_counts else a.astype(np.float64)
+
+    def sequences(s: Any) -> Recording:
+        m, n = s.acc.shape[:2]
+        seq = np.repeat(np.arange(m), n)
+        static = np.zeros((m, n), dtype=bool)
+        static[:, 0] = static[:, -1] = True  # eq. 4.4: the rate is zero at both ends
+        kw: dict[str, Any] = {}
+        if labels:
+            kw = dict(
+                acc_ref=np.asarray(s.acc_true, np.float64).reshape(-1, 3),
+                gyr_ref=np.asarray(s.gyr_true, np.float64).reshape(-1, 3),
+            )
+        return Recording(
+            t=np.arange(m * n) / fs,
+            acc=raw(s.acc).reshape(-1, 3),
+            gyr=raw(s.gyr).reshape(-1, 3),
+            seq=seq,
+            static=static.reshape(-1),
+            **kw,
+            **spec,
+        )
+
+    n_acc = ds.test_acc.raw.shape[0]
+    test_acc = Recording(
+        t=np.arange(n_acc) / fs,
+        acc=raw(ds.test_acc.raw),
+        acc_ref=np.asarray(ds.test_acc.true, np.float64),
+        static=np.ones(n_acc, dtype=bool),
+        **spec,
+    )
+    n_gyr = ds.test_gyr.raw.shape[0]
+    test_gyr = Recording(
+        t=np.linspace(0.0, 2.0 * np.pi, n_gyr),  # eq. 4.7: w(t) = 0.35 sin(t), t in [0, 2 pi]
+        gyr=raw(ds.test_gyr.raw),
+        gyr_ref=np.asarray(ds.test_gyr.true, np.float64),
+        **spec,
+    )
+    truth = {
+        "dataset": "dataset2",
+        "seed": seed,
+        "config": {k: (float(v) if isinstance(v, float) else v) for k, v in config._asdict().items()},
+        "acc_true": {"s": np.asarray(ds.acc_true_model.s).tolist(), "b": np.asarray(ds.acc_true_model.b).tolist()},
+        "gyr_true": {"s": np.asarray(ds.gyr_true_model.s).tolist(), "b": np.asarray(ds.gyr_true_model.b).tolist()},
+        "model": "y = round(s * x + b) per axis (LSB), x in g / rad/s (thesis eq. 4.6)",
+    }
+    recs = {"train": sequences(ds.train), "val": sequences(ds.val), "test_acc": test_acc, "test_gyr": test_gyr}
+    return recs, truth
+
+
+def _add_simulate(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="dataset", metavar="DATASET", parser_class=_Parser)
+    sub.required = True
+    d2 = sub.add_parser(
+        "dataset2",
+        help="thesis Dataset 2 (section 4.2): rotation sequences + test sets",
+        description="Write DIR/train.npz and DIR/val.npz (all sequences concatenated, `seq` ids, `static` "
+        "ends, datasheet metadata, no labels unless --labels), DIR/test_acc.npz and DIR/test_gyr.npz "
+        "(with acc_ref / gyr_ref labels) and DIR/truth.json (the hidden true sensor parameters).",
+    )
+    d2.add_argument("--out", required=True, metavar="DIR", help="output directory (created if needed)")
+    d2.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    d2.add_argument("--labels", action="store_true", help="also store acc_ref/gyr_ref in train.npz and val.npz")
+    d2.add_argument("--n-train", type=int, default=None, help="training sequences (default 500)")
+    d2.add_argument("--n-val", type=int, default=None, help="validation sequences (default 100)")
+    d2.add_argument("--format", choices=("npz", "csv"), default="npz", help="recording file format (default npz)")
+    d1 = sub.add_parser(
+        "dataset1",
+        help="thesis Dataset 1 surrogate (section 3.4): labelled static orientations",
+        description="Write DIR/train, DIR/val, DIR/test recordings (static samples with acc_ref labels) and "
+        "DIR/truth.json, from jaxcal.simulate.dataset1 (if this build has it).",
+    )
+    d1.add_argument("--out", required=True, metavar="DIR", help="output directory (created if needed)")
+    d1.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    d1.add_argument("--format", choices=("npz", "csv"), default="npz", help="recording file format (default npz)")
+
+
+def _out_dir(path: str) -> Path:
+    d = Path(path)
+    if d.exists() and not d.is_dir():
+        raise UsageError(f"--out {path}: exists and is not a directory")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UsageError(f"--out {path}: cannot create directory ({e.strerror or e})") from None
+    return d
+
+
+def _write_all(d: Path, recs: dict[str, Recording], truth: dict[str, Any], fmt: str) -> list[str]:
+    names = []
+    for name, rec in recs.items():
+        save_recording(rec, d / f"{name}.{fmt}")
+        names.append(f"{name}.{fmt} ({rec.n} samples)")
+    with open(d / "truth.json", "w") as fh:
+        json.dump(truth, fh, indent=1)
+    return names
+
+
+def _run_simulate(args: argparse.Namespace) -> int:
+    if args.dataset == "dataset2":
+        from jaxcal.simulate import Dataset2Config
+
+        kw = {}
+        for name in ("n_train", "n_val"):
+            v = getattr(args, name)
+            if v is not None:
+                if v < 1:
+                    raise UsageError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
+                kw[name] = v
+        d = _out_dir(args.out)
+        recs, truth = _dataset2_recordings(args.seed, Dataset2Config(**kw), args.labels)
+    else:
+        try:
+            mod = importlib.import_module("jaxcal.simulate.dataset1")
+        except ImportError:
+            raise UsageError("dataset 'dataset1' is not available in this build") from None
+        if not hasattr(mod, "dataset1"):
+            raise UsageError("dataset 'dataset1' is not available in this build")
+        d = _out_dir(args.out)
+        recs, truth = _dataset1_recordings(mod, args.seed)
+    names = _write_all(d, recs, truth, args.format)
+    print(f"{PROG}: wrote {', '.join(names)} and truth.json to {d}", file=sys.stderr)
+    return 0
+
+
+def _dataset1_recordings(mod: Any, seed: int) -> tuple[dict[str, Recording], dict[str, Any]]:
+    """Dataset 1 surrogate as recordings: ``train``/``val``/``test`` static poses.
+
+    Each split holds ``acc`` (LSB), ``acc_ref`` (the robot's labels, g), ``static`` (all true)
+    and the extra key ``acc_true`` (the exact specific force, for scoring); ``t`` is the pose
+    index in seconds (the poses are independent).
+    """
+    import jax
+    from flax import serialization
+
+    ds = mod.dataset1(jax.random.PRNGKey(seed))
+    spec = ds.spec
+    recs: dict[str, Recording] = {}
+    for split in ("train", "val", "test"):
+        part = getattr(ds, split)
+        n = part.acc.shape[0]
+        recs[split] = Recording(
+            t=np.arange(n, dtype=np.float64),
+            acc=np.asarray(part.acc, np.float64),
+            acc_ref=np.asarray(part.acc_ref, np.float64),
+            static=np.ones(n, dtype=bool),
+            acc_lsb_per_g=np.asarray(spec.s, np.float64),
+            acc_bias_lsb=np.asarray(spec.b, np.float64),
+            extra={"acc_true": np.asarray(part.acc_true, np.float64)},
+        )
+    model = jax.tree.map(lambda a: np.asarray(a).tolist(), serialization.to_state_dict(ds.model))
+    truth = {"dataset": "dataset1", "seed": seed, "model": model}
+    return recs, truth
+
+
+# ----------------------------------------------------------------------------- methods, version
+
+
+def _add_methods(p: argparse.ArgumentParser) -> None:
+    pass
+
+
+def _run_methods(args: argparse.Namespace) -> int:
+    from jaxcal.model_io import _REGISTRY, available_methods
+
+    for name, ok in available_methods().items():
+        desc = _REGISTRY[name].description if ok else "not available in this build"
+        print(f"{name:14s} {desc}")
+    return 0
+
+
+register_command(
+    "calibrate",
+    Command(
+        "fit a calibration model to a recording",
+        _add_calibrate,
+        _run_calibrate,
+        "Fit a calibration model to RECORDING and write it to MODEL.npz. linear/nn need reference "
+        "labels (acc_ref, gyr_ref) and use the datasheet values in the metadata (acc_lsb_per_g, ...) "
+        "only for nn input normalisation (eq. 3.6-3.7).",
+    ),
+)
+register_command(
+    "apply",
+    Command(
+        "calibrate a recording with a model",
+        _add_apply,
+        _run_apply,
+        "Apply MODEL to RECORDING; write t and acc_cal (g) and/or gyr_cal (rad/s) to OUT.npz.",
+    ),
+)
+register_command(
+    "simulate",
+    Command("write simulated recordings (dataset2, dataset1)", _add_simulate, _run_simulate),
+)
+register_command("methods", Command("list calibration methods and whether this build has them", _add_methods, _run_methods))
+
+
+def _lazy_commands() -> None:
+    """Subcommands provided by optional modules (``jaxcal.diagnose``, ``jaxcal.readers``)."""
+    for name, module in (("diagnose", "jaxcal.cli_diagnose"), ("import", "jaxcal.cli_import")):
+        if name in COMMANDS:
+            continue
+        try:
+            mod = importlib.import_module(module)
+        except ImportError:
+            continue
+        cmd = getattr(mod, "COMMAND", None)
+        if isinstance(cmd, Command):
+            register_command(name, cmd)
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser (all registered subcommands)."""
+    _lazy_commands()
+    parser = _Parser(
+        prog=PROG,
+        description="jaxcal: IMU (accelerometer + gyroscope) calibration in JAX. Recordings are .npz or .csv "
+        "files with t, acc and/or gyr in LSB (see CONVENTIONS.md). Exit status 2 on bad input.",
+        epilog="examples: jaxcal simulate dataset2 --out d2 --labels; "
+        "jaxcal calibrate --method linear d2/train.npz --out lin.npz; "
+        "jaxcal apply lin.npz d2/test_acc.npz --out cal.npz",
+    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, cmd in COMMANDS.items():
+        p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help)
+        cmd.add_arguments(p)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
+    from jaxcal.model_io import ModelError
+
+    try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as e:  # --help / --version
+            return int(e.code or 0)
+        return COMMANDS[args.command].run(args)
+    except (UsageError, RecordingError, ModelError) as e:
+        msg = " ".join(str(e).split())
+        prefix = "" if msg.startswith(PROG) else f"{PROG}: error: "
+        print(f"{prefix}{msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,200 @@
+"""The ``jaxcal`` command line end to end (``main([...])`` in-process) on tiny simulated data."""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from jaxcal import model_io
+from jaxcal.cli import main
+from jaxcal.model_io import CalibrationModel, FitOptions, Fitted, fit_model, load_model, register_method, save_model
+from jaxcal.recording import Recording, load_recording, save_recording
+from jaxcal.simulate import Dataset2Config, dataset2
+
+N_TRAIN, N_VAL, SEED = 12, 4, 7
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    """``jaxcal simulate dataset2 --labels`` (small) and one linear model fitted on it."""
+    d = tmp_path_factory.mktemp("d2")
+    assert main(["simulate", "dataset2", "--out", str(d), "--seed", str(SEED), "--labels",
+                 "--n-train", str(N_TRAIN), "--n-val", str(N_VAL)]) == 0
+    assert main(["calibrate", "--method", "linear", str(d / "train.npz"), "--out", str(d / "lin.npz"), "-q"]) == 0
+    assert main(["simulate", "dataset2", "--out", str(d / "nolabels"), "--seed", str(SEED + 1),
+                 "--n-train", str(N_TRAIN), "--n-val", str(N_VAL)]) == 0
+    return d
+
+
+def test_simulate_dataset2_matches_library(sim):
+    config = Dataset2Config(n_train=N_TRAIN, n_val=N_VAL)
+    # The CLI runs dataset2 under jit (eager float32 differs from jit in a few 1-LSB roundings).
+    ds = jax.jit(dataset2, static_argnums=1)(jax.random.PRNGKey(SEED), config)
+    n = config.n_samples
+    train = load_recording(sim / "train.npz")
+    val = load_recording(sim / "val.npz")
+    assert train.n == N_TRAIN * n and val.n == N_VAL * n
+    np.testing.assert_array_equal(train.acc, np.asarray(ds.train.acc).reshape(-1, 3))
+    np.testing.assert_array_equal(val.gyr, np.asarray(ds.val.gyr).reshape(-1, 3))
+    np.testing.assert_allclose(train.acc_ref, np.asarray(ds.train.acc_true).reshape(-1, 3), atol=1e-7)
+    assert np.unique(train.seq).size == N_TRAIN and np.all(np.bincount(train.seq) == n)
+    assert train.static.sum() == 2 * N_TRAIN  # both ends of every sequence
+    assert train.fs == config.fs and float(train.acc_lsb_per_g) == config.acc_lsb_per_g
+    np.testing.assert_allclose(np.diff(train.t), 1.0 / config.fs, rtol=1e-9)
+    ta, tg = load_recording(sim / "test_acc.npz"), load_recording(sim / "test_gyr.npz")
+    assert ta.sensors() == ("acc",) and tg.sensors() == ("gyr",)
+    assert ta.n == config.n_test_acc and tg.n == config.n_test_gyr
+    np.testing.assert_array_equal(ta.acc, np.asarray(ds.test_acc.raw))
+    np.testing.assert_allclose(tg.gyr_ref, np.asarray(ds.test_gyr.true), atol=1e-7)
+    truth = json.loads((sim / "truth.json").read_text())
+    np.testing.assert_allclose(truth["acc_true"]["s"], np.asarray(ds.acc_true_model.s))
+    nolab = load_recording(sim / "nolabels" / "train.npz")
+    assert nolab.acc_ref is None and nolab.gyr_ref is None and nolab.n == N_TRAIN * n
+
+
+def test_linear_calibrate_apply_recovers_truth(sim, tmp_path, capsys):
+    truth = json.loads((sim / "truth.json").read_text())
+    model = load_model(sim / "lin.npz")
+    assert model.method == "linear" and model.sensors == ("acc", "gyr")
+    for s in ("acc", "gyr"):
+        S, b = model.state[s]["S"], model.state[s]["b"]
+        s_true, b_true = np.asarray(truth[f"{s}_true"]["s"]), np.asarray(truth[f"{s}_true"]["b"])
+        # Quantisation noise (uniform, 0.29 LSB rms) over ~1200 samples: errors far below 1 LSB.
+        np.testing.assert_allclose(np.diag(S), s_true, rtol=2e-4)
+        assert np.abs(S - np.diag(np.diag(S))).max() < 3.0  # no cross-axis terms in the simulation
+        np.testing.assert_allclose(b, b_true, atol=1.0)
+    for name, s, floor in (("test_acc", "acc", 0.0298e-3), ("test_gyr", "gyr", 0.0658e-3)):
+        out = tmp_path / f"{name}_cal.npz"
+        code, _, err = run(capsys, "apply", sim / "lin.npz", sim / f"{name}.npz", "--out", out)
+        assert code == 0, err
+        with np.load(out) as z:
+            assert set(z.files) == {"t", f"{s}_cal"}
+            e = np.linalg.norm(z[f"{s}_cal"] - load_recording(sim / f"{name}.npz").to_dict()[f"{s}_ref"], axis=1)
+        # Rounding to integer LSB leaves the floor measured with the true parameters; the
+        # fitted model must be within 50 % of it (spec conversion is ~1000x worse).
+        assert e.mean() < 1.5 * floor, (s, e.mean())
+
+
+def test_nn_runs_and_beats_spec_conversion(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    n = 600
+    f = rng.normal(size=(n, 3))
+    f /= np.linalg.norm(f, axis=1, keepdims=True)
+    s_true, b_true = 16384.0 * np.array([1.02, 0.985, 1.01]), np.array([300.0, -200.0, 150.0])
+    rec = Recording(
+        t=np.arange(n) * 0.01, acc=np.round(f * s_true + b_true), acc_ref=f, acc_lsb_per_g=np.asarray(16384.0)
+    )
+    save_recording(rec, tmp_path / "static.csv")
+    code, _, err = run(capsys, "calibrate", "--method", "nn", tmp_path / "static.csv", "--out", tmp_path / "nn.npz",
+                       "--widths", "128", "--max-epochs", "600", "--lr", "1e-2", "--patience", "100", "--seed", "1")
+    assert code == 0, err
+    assert "fitting nn (acc) on 510 samples" in err and "done in" in err
+    model = load_model(tmp_path / "nn.npz")
+    assert model.meta["widths"] == [128] and model.meta["n_val"] == 90
+    test = Recording(t=rec.t[:200], acc=rec.acc[:200])
+    save_recording(test, tmp_path / "test.npz")
+    code, _, err = run(capsys, "apply", tmp_path / "nn.npz", tmp_path / "test.npz", "--out", tmp_path / "cal.npz")
+    assert code == 0, err
+    with np.load(tmp_path / "cal.npz") as z:
+        e_nn = np.linalg.norm(z["acc_cal"] - f[:200], axis=1).mean()
+    e_spec = np.linalg.norm(rec.acc[:200] / 16384.0 - f[:200], axis=1).mean()
+    # A small, briefly trained MLP converges slowly to the affine truth (~7 mg here after 600
+    # epochs); a wrongly normalised, untrained or mis-applied network would be >= spec level.
+    assert e_nn < 0.5 * e_spec, (e_nn, e_spec)
+
+
+def test_model_file_round_trip_and_registry(tmp_path):
+    n = 50
+    rng = np.random.default_rng(3)
+    rec = Recording(t=np.arange(n) * 0.1, gyr=rng.normal(size=(n, 3)) * 100, gyr_ref=rng.normal(size=(n, 3)))
+
+    def fit_scale(r, options):  # a toy plug-in: per-axis least-squares scale, no bias
+        y, x = np.asarray(r.gyr), np.asarray(r.gyr_ref)
+        return Fitted(("gyr",), {"gyr": {"k": (x * y).sum(0) / (y * y).sum(0)}}, {"note": options.seed})
+
+    def apply_scale(state, meta, r):
+        return {"gyr_cal": np.asarray(r.gyr) * state["gyr"]["k"]}
+
+    register_method("toy-scale", fit_scale, apply_scale, needs_labels=True)
+    try:
+        m = fit_model("toy-scale", rec, FitOptions(seed=5))
+        save_model(m, tmp_path / "toy.npz")
+        m2 = load_model(tmp_path / "toy.npz")
+        assert m2.method == "toy-scale" and m2.sensors == ("gyr",) and m2.meta["note"] == 5
+        np.testing.assert_array_equal(m2.apply(rec)["gyr_cal"], m.apply(rec)["gyr_cal"])
+        # the built-in linear model too: file round trip leaves apply unchanged
+        lin = fit_model("linear", rec.replace(gyr=rec.gyr_ref * 7500.0 + 12.0))
+        save_model(lin, tmp_path / "lin.npz")
+        r_apply = rec.replace(gyr=rec.gyr_ref * 7500.0 + 12.0)
+        np.testing.assert_array_equal(load_model(tmp_path / "lin.npz").apply(r_apply)["gyr_cal"],
+                                      lin.apply(r_apply)["gyr_cal"])
+        np.testing.assert_allclose(lin.apply(r_apply)["gyr_cal"], rec.gyr_ref, atol=1e-9)
+    finally:
+        model_io._REGISTRY.pop("toy-scale")
+
+
+def _write_bad_model(path):
+    np.savez(path, jaxcal_model_format=np.asarray(1), method=np.asarray("alchemy"), sensors=np.asarray(["acc"]),
+             meta_json=np.asarray("{}"))
+
+
+BAD_CASES = {
+    "missing recording": (["calibrate", "--method", "linear", "{d}/nope.npz", "--out", "{t}/m.npz"], "no such file"),
+    "wrong extension": (["calibrate", "--method", "linear", "{d}/truth.json", "--out", "{t}/m.npz"], "extension"),
+    "corrupt npz": (["calibrate", "--method", "linear", "{t}/junk.npz", "--out", "{t}/m.npz"], "cannot read"),
+    "linear without labels": (["calibrate", "--method", "linear", "{d}/nolabels/train.npz", "--out", "{t}/m.npz"],
+                              "needs reference labels"),
+    "nn without labels": (["calibrate", "--method", "nn", "{d}/nolabels/val.npz", "--out", "{t}/m.npz"],
+                          "acc_ref"),
+    "unavailable method": (["calibrate", "--method", "ghost", "{d}/train.npz", "--out", "{t}/m.npz"],
+                           "method 'ghost' is not available in this build"),
+    "unknown method": (["calibrate", "--method", "voodoo", "{d}/train.npz", "--out", "{t}/m.npz"], "invalid choice"),
+    "missing --out": (["calibrate", "--method", "linear", "{d}/train.npz"], "--out"),
+    "bad widths": (["calibrate", "--method", "nn", "{d}/train.npz", "--out", "{t}/m.npz", "--widths", "a,b"],
+                   "--widths"),
+    "model of unknown method": (["apply", "{t}/alchemy.npz", "{d}/test_acc.npz", "--out", "{t}/o.npz"],
+                                "unknown method 'alchemy'"),
+    "not a model": (["apply", "{d}/train.npz", "{d}/test_acc.npz", "--out", "{t}/o.npz"], "not a jaxcal model"),
+    "sensor missing": (["apply", "{t}/acc_only.npz", "{d}/test_gyr.npz", "--out", "{t}/o.npz"], "no 'acc'"),
+    "bad csv row": (["apply", "{d}/lin.npz", "{t}/bad.csv", "--out", "{t}/o.npz"], "row 1 (line 3)"),
+    "unit mismatch": (["apply", "{d}/lin.npz", "{t}/in_g.npz", "--out", "{t}/o.npz"], "fitted on LSB"),
+    "no subcommand": ([], "required"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_CASES))
+def test_bad_input_exits_2_with_one_line(sim, tmp_path, capsys, monkeypatch, case):
+    monkeypatch.setitem(model_io._LAZY, "ghost", lambda: None)
+    (tmp_path / "junk.npz").write_bytes(b"PK\x03\x04 truncated")
+    _write_bad_model(tmp_path / "alchemy.npz")
+    lin = load_model(sim / "lin.npz")
+    save_model(CalibrationModel("linear", ("acc",), {"acc": lin.state["acc"]}, lin.meta), tmp_path / "acc_only.npz")
+    (tmp_path / "bad.csv").write_text("t,acc_x,acc_y,acc_z\n0,1,2,3\n0,1,2,3\n")
+    np.savez(tmp_path / "in_g.npz", t=np.arange(3.0), acc=np.eye(3), acc_unit=np.asarray("g"))
+    argv, needle = BAD_CASES[case]
+    argv = [a.format(d=sim, t=tmp_path) for a in argv]
+    code, out, err = run(capsys, *argv)
+    assert code == 2, (case, err)
+    lines = err.strip("\n").split("\n")
+    assert len(lines) == 1, err
+    assert needle in lines[0], (needle, lines[0])
+    assert "Traceback" not in err and out == ""
+    assert not (tmp_path / "m.npz").exists() and not (tmp_path / "o.npz").exists()
+
+
+def test_help_version_and_methods(capsys):
+    code, out, _ = run(capsys, "--version")
+    assert code == 0 and out.startswith("jaxcal ")
+    code, out, _ = run(capsys, "calibrate", "--help")
+    assert code == 0 and "--method" in out and "--widths" in out and "--seed" in out
+    code, out, _ = run(capsys, "methods")
+    assert code == 0 and out.split("\n")[0].startswith("linear")
