@@ -6,11 +6,14 @@
     jaxcal apply MODEL.npz RECORDING --out CALIBRATED.npz
     jaxcal simulate dataset2 --out DIR [--seed N] [--labels]
     jaxcal simulate dataset1 --out DIR [--seed N]       (if jaxcal.simulate.dataset1 exists)
+    jaxcal import FORMAT FILE... --out REC.npz [--fs HZ] [...]
+    jaxcal diagnose RECORDING --out DIR [--baseline diag|affine]
     jaxcal methods
     jaxcal --version
 
-Subcommands live in the :data:`COMMANDS` table (name -> help, argument builder, handler), so
-later ones (``diagnose``, ``import``) plug in with :func:`register_command`. Exit status: 0 on
+Subcommands live in the :data:`COMMANDS` table (name -> help, argument builder, handler); more
+plug in with :func:`register_command`. ``import`` (:mod:`jaxcal.readers`) and ``diagnose``
+(:mod:`jaxcal.diagnose`) import their modules on use and exit 2 if this build lacks them. Exit status: 0 on
 success; 2 on bad input, with exactly one line on stderr that says what is wrong and where (no
 traceback). Progress lines of long fits go to stderr (silence them with ``--quiet``).
 """
@@ -407,18 +410,112 @@ register_command(
 register_command("methods", Command("list calibration methods and whether this build has them", _add_methods, _run_methods))
 
 
-def _lazy_commands() -> None:
-    """Subcommands provided by optional modules (``jaxcal.diagnose``, ``jaxcal.readers``)."""
-    for name, module in (("diagnose", "jaxcal.cli_diagnose"), ("import", "jaxcal.cli_import")):
-        if name in COMMANDS:
-            continue
-        try:
-            mod = importlib.import_module(module)
-        except ImportError:
-            continue
-        cmd = getattr(mod, "COMMAND", None)
-        if isinstance(cmd, Command):
-            register_command(name, cmd)
+# ----------------------------------------------------------------------------- import, diagnose
+
+
+def _mapping(text: str) -> dict[str, str]:
+    out = {}
+    for item in text.split(","):
+        if "=" not in item:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE[,NAME=VALUE...], got {text!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _add_import(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "format",
+        metavar="FORMAT",
+        help="imu_tk (ACC GYR files), imucal (CSV [sections.json]; needs --fs), euroc / tumvi (IMU CSV "
+        "[pose CSV]), mpu6050, fusion (x-io), csv (generic; needs --columns)",
+    )
+    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format")
+    p.add_argument("--out", required=True, metavar="REC.npz", help="recording to write (.npz or .csv)")
+    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (imucal, csv without a time column)")
+    p.add_argument("--acc-unit", default=None, help="accelerometer unit where the file does not say (imucal)")
+    p.add_argument("--gyr-unit", default=None, help="gyroscope unit where the file does not say (imucal)")
+    p.add_argument("--time-unit", default=None, help="time unit of the files (imu_tk; default s)")
+    p.add_argument(
+        "--columns", type=_mapping, default=None, help="csv: conventions name=CSV column, e.g. t=time,acc_x=ax,..."
+    )
+    p.add_argument("--units", type=_mapping, default=None, help="csv: quantity=unit, e.g. t=ms,acc=m/s^2,gyr=deg/s")
+    p.add_argument("--skip-rows", type=int, default=None, help="csv: lines to skip before the header")
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    try:
+        readers = importlib.import_module("jaxcal.readers")
+    except ImportError:
+        raise UsageError("command 'import' is not available in this build") from None
+    if not hasattr(readers, "read"):
+        raise UsageError("command 'import' is not available in this build")
+    if not args.out.lower().endswith((".npz", ".csv")):
+        raise UsageError(f"--out {args.out}: recordings are written as .npz or .csv")
+    names = {"fs": "fs", "acc_unit": "acc_unit", "gyr_unit": "gyr_unit", "time_unit": "time_unit",
+             "columns": "columns", "units": "units", "skip_rows": "skip_rows"}
+    options = {k: getattr(args, a) for a, k in names.items() if getattr(args, a) is not None}
+    reader_error = getattr(readers, "ReaderError", ValueError)
+    try:
+        rec = readers.read(args.format, args.files, **options)
+    except reader_error as e:
+        raise UsageError(str(e)) from None
+    except TypeError as e:  # an option this format does not take
+        given = ", ".join("--" + k.replace("_", "-") for k in options) or "none"
+        raise UsageError(f"format {args.format!r} does not take the options given ({given}): {e}") from None
+    save_recording(rec, args.out)
+    print(f"{PROG}: wrote {args.out} ({rec.n} samples, {', '.join(rec.sensors())})", file=sys.stderr)
+    return 0
+
+
+def _add_diagnose(p: argparse.ArgumentParser) -> None:
+    p.add_argument("recording", metavar="RECORDING", help="recording with reference motion (acc_ref/gyr_ref or pos_ref+quat_ref)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output directory: report.json, report.md, figures")
+    p.add_argument("--baseline", choices=("diag", "affine"), default="diag", help="baseline sensor model (default diag)")
+
+
+def _run_diagnose(args: argparse.Namespace) -> int:
+    try:
+        diag = importlib.import_module("jaxcal.diagnose")
+    except ImportError:
+        raise UsageError("command 'diagnose' is not available in this build") from None
+    if not hasattr(diag, "diagnose_recording"):
+        raise UsageError("command 'diagnose' is not available in this build")
+    rec = load_recording(args.recording)
+    d = _out_dir(args.out)
+    t0 = time.perf_counter()
+    print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
+    try:
+        rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d)
+    except ValueError as e:  # documented: bad input
+        raise UsageError(f"{args.recording}: {e}") from None
+    names = [e.get("name", "?") + "(" + e.get("sensor", "?") + ")" for e in rep.get("effects", [])]
+    print(
+        f"{PROG}: wrote {d / 'report.json'} in {time.perf_counter() - t0:.1f} s; effects: {', '.join(names) or 'none'}",
+        file=sys.stderr,
+    )
+    return 0
+
+
+register_command(
+    "import",
+    Command(
+        "convert a public IMU format to a jaxcal recording",
+        _add_import,
+        _run_import,
+        "Read FILE(s) in FORMAT (jaxcal.readers) and write a recording per CONVENTIONS.md.",
+    ),
+)
+register_command(
+    "diagnose",
+    Command(
+        "find the effects a sensor model leaves out (report.json)",
+        _add_diagnose,
+        _run_diagnose,
+        "Fit the baseline sensor model to RECORDING against its reference motion, test the effects of "
+        "the discrepancy vocabulary (CONVENTIONS.md) and write DIR/report.json, report.md and figures.",
+    ),
+)
 
 
 # ----------------------------------------------------------------------------- main
@@ -426,7 +523,6 @@ def _lazy_commands() -> None:
 
 def build_parser() -> argparse.ArgumentParser:
     """The full argument parser (all registered subcommands)."""
-    _lazy_commands()
     parser = _Parser(
         prog=PROG,
         description="jaxcal: IMU (accelerometer + gyroscope) calibration in JAX. Recordings are .npz or .csv "

@@ -459,9 +459,130 @@ def _require_spec(rec: Recording, sensor: str, method: str) -> Diag:
     return spec
 
 
-_LAZY["online-thesis"] = lambda: None  # replaced below when wiring is defined
-_LAZY["online"] = lambda: None
-_LAZY["multipos"] = lambda: None
+def _sequences_of(rec: Recording, method: str) -> np.ndarray:
+    if rec.seq is None:
+        raise ModelError(f"method '{method}' needs 'seq' ids (the recording must be split into rotation sequences)")
+    return np.asarray(rec.seq)
+
+
+def _diag_state(d: Diag) -> dict[str, np.ndarray]:
+    return {"s": np.asarray(d.s, np.float64), "b": np.asarray(d.b, np.float64)}
+
+
+def _build_online_thesis(mod: Any) -> MethodSpec:
+    def fit(rec: Recording, options: FitOptions) -> Fitted:
+        _require_both(rec, "online-thesis")
+        seq = _sequences_of(rec, "online-thesis")
+        acc_spec = _require_spec(rec, "acc", "online-thesis")
+        gyr_spec = _require_spec(rec, "gyr", "online-thesis")
+        dt = recording_dt(rec)
+        n_seq = len(sequence_slices(rec))
+        options.say(f"fitting online-thesis on {n_seq} sequences ({rec.n} samples, dt {dt:g} s) ...")
+        t0 = time.perf_counter()
+        try:
+            res = mod.fit_online_thesis_recording(
+                np.asarray(rec.acc, np.float32), np.asarray(rec.gyr, np.float32), seq, dt,
+                acc_spec, gyr_spec, jax.random.PRNGKey(options.seed), None,
+            )
+            jax.block_until_ready(res.acc_params)
+        except ValueError as e:  # e.g. sequences of unequal length
+            raise ModelError(f"online-thesis: {e}") from None
+        elapsed = time.perf_counter() - t0
+        options.say(f"fitting online-thesis ... done in {elapsed:.1f} s")
+        state = {
+            "acc": {"params": res.acc_params, "spec": _diag_state(acc_spec)},
+            "gyr": {"params": res.gyr_params, "spec": _diag_state(gyr_spec)},
+        }
+        meta = {
+            "units": _units(rec, SENSORS),
+            "seed": int(options.seed),
+            "n_sequences": n_seq,
+            "dt": dt,
+            "fit_seconds": elapsed,
+            "acc_range": float(getattr(mod, "ACC_RANGE_G", DEFAULT_ACC_RANGE_G)),
+            "gyr_range": float(getattr(mod, "GYR_RANGE_RADS", DEFAULT_GYR_RANGE_RADS)),
+        }
+        return Fitted(SENSORS, state, meta)
+
+    def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> dict[str, np.ndarray]:
+        out = {}
+        for s, fn, rng in (("acc", mod.calibrate_acc, meta["acc_range"]), ("gyr", mod.calibrate_gyr, meta["gyr_range"])):
+            y = getattr(rec, s)
+            if y is None or s not in state:
+                continue
+            params = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), dict(state[s]["params"]))
+            spec = Diag(jnp.asarray(state[s]["spec"]["s"], jnp.float32), jnp.asarray(state[s]["spec"]["b"], jnp.float32))
+            out[f"{s}_cal"] = np.asarray(fn(params, jnp.asarray(y, jnp.float32), spec, rng))
+        return out
+
+    return MethodSpec(
+        "online-thesis", fit, apply, False,
+        "thesis chapter 4 as published: two 3-5-10-5-3 NNs self-calibrated on rotation sequences; "
+        "needs seq ids and datasheet values",
+    )
+
+
+def _build_online(mod: Any) -> MethodSpec:
+    def fit(rec: Recording, options: FitOptions) -> Fitted:
+        _require_both(rec, "online")
+        seq = _sequences_of(rec, "online")
+        n_seq = len(sequence_slices(rec))
+        dt = recording_dt(rec)
+        acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
+        options.say(f"fitting online on {n_seq} sequences ({rec.n} samples, dt {dt:g} s) ...")
+        t0 = time.perf_counter()
+        try:
+            acc_model, gyr_model = mod.fit_online_recording(
+                np.asarray(rec.acc, np.float64), np.asarray(rec.gyr, np.float64), seq, dt, acc_spec, gyr_spec
+            )
+        except ValueError as e:
+            raise ModelError(f"online: {e}") from None
+        elapsed = time.perf_counter() - t0
+        for name, m in (("acc", acc_model), ("gyr", gyr_model)):
+            if not (np.all(np.isfinite(np.asarray(m.S))) and np.all(np.isfinite(np.asarray(m.b)))):
+                raise ModelError(f"online: the {name} estimate is not finite (does the recording hold rotation sequences?)")
+        options.say(f"fitting online ... done in {elapsed:.1f} s")
+        meta = {
+            "units": _units(rec, SENSORS),
+            "n_sequences": n_seq,
+            "dt": dt,
+            "fit_seconds": elapsed,
+            "spec_from": {s: ("metadata" if sp is not None else "data") for s, sp in (("acc", acc_spec), ("gyr", gyr_spec))},
+        }
+        return Fitted(SENSORS, {"acc": acc_model, "gyr": gyr_model}, meta)
+
+    return MethodSpec(
+        "online", fit, _apply_affine_state, False,
+        "jaxcal's streaming self-calibration (affine per sensor, information filter on rotation "
+        "sequences); needs seq ids, no labels",
+    )
+
+
+def _build_multipos(mod: Any) -> MethodSpec:
+    def fit(rec: Recording, options: FitOptions) -> Fitted:
+        options.say(f"fitting multipos on {rec.n} samples ...")
+        t0 = time.perf_counter()
+        try:
+            acc_model, gyr_model = mod.fit_multipos_recording(rec)
+        except ValueError as e:
+            raise ModelError(f"multipos: {e}") from None
+        elapsed = time.perf_counter() - t0
+        state = {s: m for s, m in (("acc", acc_model), ("gyr", gyr_model)) if m is not None}
+        if not state:
+            raise ModelError("multipos: no sensor could be calibrated")
+        options.say(f"fitting multipos ... done in {elapsed:.1f} s")
+        sensors = tuple(s for s in SENSORS if s in state)
+        return Fitted(sensors, state, {"units": _units(rec, sensors), "fit_seconds": elapsed})
+
+    return MethodSpec(
+        "multipos", fit, _apply_affine_state, False,
+        "static poses joined by rotations (Tedaldi et al. 2014); no labels, no datasheet values",
+    )
+
+
+_LAZY["online-thesis"] = _lazy("jaxcal.online_thesis", "fit_online_thesis_recording", _build_online_thesis)
+_LAZY["online"] = _lazy("jaxcal.online", "fit_online_recording", _build_online)
+_LAZY["multipos"] = _lazy("jaxcal.multipos", "fit_multipos_recording", _build_multipos)
 
 
 # ----------------------------------------------------------------------------- model object and files

@@ -198,3 +198,98 @@ def test_help_version_and_methods(capsys):
     assert code == 0 and "--method" in out and "--widths" in out and "--seed" in out
     code, out, _ = run(capsys, "methods")
     assert code == 0 and out.split("\n")[0].startswith("linear")
+
+
+def _method_available(name: str) -> bool:
+    try:
+        model_io.get_method(name)
+        return True
+    except model_io.ModelError:
+        return False
+
+
+def _test_errors(sim_dir, model_path, tmp_path, capsys) -> dict[str, tuple[float, float]]:
+    """Mean test error of a model and of spec conversion on test_acc / test_gyr (g, rad/s)."""
+    out = {}
+    for name, s, lsb in (("test_acc", "acc", 16384.0), ("test_gyr", "gyr", 7505.747116213784)):
+        rec = load_recording(sim_dir / f"{name}.npz")
+        code, _, err = run(capsys, "apply", model_path, sim_dir / f"{name}.npz", "--out", tmp_path / f"{name}.npz")
+        assert code == 0, err
+        with np.load(tmp_path / f"{name}.npz") as z:
+            cal = z[f"{s}_cal"]
+        ref = rec.to_dict()[f"{s}_ref"]
+        raw = rec.to_dict()[s]
+        out[s] = (np.linalg.norm(cal - ref, axis=1).mean(), np.linalg.norm(raw / lsb - ref, axis=1).mean())
+    return out
+
+
+@pytest.mark.skipif(not _method_available("online"), reason="jaxcal.online not in this build")
+def test_online_without_labels_beats_spec(sim, tmp_path, capsys):
+    # 12 unlabelled rotation sequences (seq ids + datasheet metadata only).
+    code, _, err = run(capsys, "calibrate", "--method", "online", sim / "nolabels" / "train.npz",
+                       "--out", tmp_path / "on.npz")
+    assert code == 0, err
+    assert load_model(tmp_path / "on.npz").meta["n_sequences"] == N_TRAIN
+    # the test sets of the unlabelled simulation share its (seed SEED + 1) sensor
+    errs = _test_errors(sim / "nolabels", tmp_path / "on.npz", tmp_path, capsys)
+    for s, (e_model, e_spec) in errs.items():
+        assert e_model < 0.1 * e_spec, (s, e_model, e_spec)
+
+
+@pytest.mark.skipif(not _method_available("online-thesis"), reason="jaxcal.online_thesis not in this build")
+def test_online_thesis_cli_equals_library(sim, tmp_path, capsys):
+    """The CLI runs exactly the library's algorithm (same key, data, spec) and applies it the same.
+
+    (Its accuracy is checked in tests/test_online_thesis.py; with few sequences the published
+    algorithm is worse than spec conversion, e.g. ~135 mg with 100 sequences, seed 3.)
+    """
+    from jaxcal import online_thesis as ot
+    from jaxcal.sensor import spec_diag
+
+    train = load_recording(sim / "nolabels" / "train.npz")
+    code, _, err = run(capsys, "calibrate", "--method", "online-thesis", sim / "nolabels" / "train.npz",
+                       "--out", tmp_path / "ot.npz", "--seed", "3")
+    assert code == 0, err
+    acc_spec, gyr_spec = spec_diag(float(train.acc_lsb_per_g)), spec_diag(float(train.gyr_lsb_per_rads))
+    res = ot.fit_online_thesis_recording(train.acc.astype(np.float32), train.gyr.astype(np.float32), train.seq,
+                                         1.0 / train.fs, acc_spec, gyr_spec, jax.random.PRNGKey(3))
+    test = load_recording(sim / "nolabels" / "test_acc.npz")
+    code, _, err = run(capsys, "apply", tmp_path / "ot.npz", sim / "nolabels" / "test_acc.npz", "--out", tmp_path / "c.npz")
+    assert code == 0, err
+    with np.load(tmp_path / "c.npz") as z:
+        np.testing.assert_allclose(z["acc_cal"], np.asarray(ot.calibrate_acc(res.acc_params, test.acc, acc_spec)),
+                                   rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not _method_available("multipos"), reason="jaxcal.multipos not in this build")
+def test_multipos_through_cli_on_xsens(tmp_path, capsys):
+    from pathlib import Path
+
+    rec_path = Path(__file__).resolve().parents[1] / "data" / "imu_tk_xsens_multipos" / "xsens.npz"
+    if not rec_path.exists():
+        pytest.skip("data/imu_tk_xsens_multipos not present")
+    code, _, err = run(capsys, "calibrate", "--method", "multipos", rec_path, "--out", tmp_path / "mp.npz")
+    assert code == 0, err
+    code, _, err = run(capsys, "apply", tmp_path / "mp.npz", rec_path, "--out", tmp_path / "cal.npz")
+    assert code == 0, err
+    with np.load(tmp_path / "cal.npz") as z:
+        norm = np.linalg.norm(z["acc_cal"][:1000], axis=1)  # the recording starts at rest
+    assert abs(norm.mean() - 1.0) < 5e-3
+
+
+def test_import_command(tmp_path, capsys):
+    from pathlib import Path
+
+    d = Path(__file__).resolve().parents[1] / "data" / "imu_tk_xsens_multipos"
+    if not (d / "xsens_acc_head.txt").exists():
+        pytest.skip("data/imu_tk_xsens_multipos not present")
+    code, _, err = run(capsys, "import", "imu_tk", d / "xsens_acc_head.txt", d / "xsens_gyro_head.txt",
+                       "--out", tmp_path / "xs.csv")
+    assert code == 0, err
+    rec = load_recording(tmp_path / "xs.csv")
+    raw = np.loadtxt(d / "xsens_acc_head.txt")
+    assert rec.n == raw.shape[0] and rec.gyr is not None
+    np.testing.assert_array_equal(rec.acc, raw[:, 1:4])
+    code, _, err = run(capsys, "import", "imu_tk", d / "xsens_acc_head.txt", "--out", tmp_path / "y.npz")
+    assert code == 2 and len(err.strip().split("\n")) == 1 and "files" in err
