@@ -1,0 +1,335 @@
+"""The diagnosis pipeline: prepare a recording, then per sensor locate -> name -> refit.
+
+:func:`prepare` turns a recording (dict of arrays or :class:`jaxcal.recording.Recording`) into
+:class:`~jaxcal.diagnose.select.SensorData` per sensor: physical outputs via the datasheet
+values, the reference motion (given, or derived from a pose with smoothing and decimation), the
+temperature, validity, and contiguous time blocks for cross-validation.
+:func:`diagnose_sensor` runs the coarse time-offset search, saturation check, iterated
+noise-model + forward selection, detectability and confounding analysis, and the joint refits.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping, NamedTuple
+
+import numpy as np
+
+from jaxcal.diagnose import effects as E
+from jaxcal.diagnose import kinematics as K
+from jaxcal.diagnose.refit import RefitResult, refit
+from jaxcal.diagnose.select import (
+    SelectConfig,
+    SensorData,
+    build_system,
+    candidates,
+    canonical_correlation,
+    coarse_lag,
+    critical_value,
+    detectable_noncentrality,
+    fit_baseline,
+    forward_select,
+    group_columns,
+    heldout_rms_path,
+    linearize,
+    linearize_baseline,
+    minimum_detectable,
+    projected_information,
+    saturation_mds,
+    saturation_plateau,
+    saturation_stat,
+)
+from jaxcal.diagnose.whiten import apply_filter, fit_ar, row_ok
+
+# Motion/conditions that excite each effect (used in warnings).
+EXCITE = {
+    "lever_arm": "angular acceleration and rates about several axes (a constant rate makes a lever arm look like a bias)",
+    "g_sensitivity": "orientations that put gravity along each axis",
+    "misalignment": "inputs on every axis",
+    "scale_nonlinearity": "large inputs of both signs on every axis",
+    "time_offset": "changing inputs (angular acceleration); with none a time offset is unobservable",
+    "temperature_bias": "a temperature change that is not monotonic in time (heat and cool)",
+    "temperature_scale": "a temperature change while the inputs are large",
+    "bias_drift": "a longer recording",
+}
+
+
+class Prepared(NamedTuple):
+    """A recording ready for diagnosis: per-sensor data, time, temperature, notes."""
+
+    sensors: dict[str, SensorData]
+    t: np.ndarray
+    temp: np.ndarray | None
+    dt: float
+    notes: list[str]
+
+
+def _get(rec: Any, k: str):
+    if isinstance(rec, Mapping):
+        v = rec.get(k)
+    else:
+        v = getattr(rec, k, None)
+        if v is None and hasattr(rec, "extra"):
+            v = rec.extra.get(k)
+    return v
+
+
+def _spec(rec, sensor: str, y: np.ndarray, x: np.ndarray, rows: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    unit = str(_get(rec, f"{sensor}_unit") or "LSB")
+    if unit != "LSB":
+        return np.ones(3), np.zeros(3)
+    sk, bk = ("acc_lsb_per_g", "acc_bias_lsb") if sensor == "acc" else ("gyr_lsb_per_rads", "gyr_bias_lsb")
+    s, b = _get(rec, sk), _get(rec, bk)
+    if s is not None:
+        return np.broadcast_to(np.asarray(s, float), (3,)).copy(), np.broadcast_to(np.asarray(b if b is not None else 0.0, float), (3,)).copy()
+    sc, bi = np.zeros(3), np.zeros(3)
+    for i in range(3):
+        a = np.stack([x[rows, i], np.ones(rows.sum())], 1)
+        sc[i], bi[i] = np.linalg.lstsq(a, y[rows, i], rcond=None)[0]
+    notes.append(f"{sensor}: no datasheet values; LSB converted with a per-axis scale/bias fit")
+    return sc, bi
+
+
+def split_blocks(n: int, n_blocks: int = 8) -> np.ndarray:
+    """Block id (N,) of ``n_blocks`` contiguous equal time blocks (cross-validation folds)."""
+    return np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
+
+
+def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, n_blocks: int = 8) -> Prepared:
+    """Build per-sensor :class:`SensorData` from a recording (see module docstring).
+
+    With ``gyr_ref``/``acc_ref`` given, angular acceleration is the five-point derivative of
+    ``gyr_ref`` (or a Gaussian-smoothed one of ``ref_sigma_samples`` samples if > 0). With only a pose, the reference is derived with a Gaussian
+    of ``pose_sigma`` s (:func:`jaxcal.diagnose.kinematics.reference_from_pose`), the sensor outputs
+    are smoothed by the same kernel and everything is decimated by ``round(pose_sigma / dt)``.
+    """
+    notes: list[str] = []
+    t = np.asarray(_get(rec, "t"), np.float64)
+    if t.ndim != 1 or len(t) < 100:
+        raise ValueError("diagnose needs a 't' array of at least 100 samples")
+    dt = float(np.median(np.diff(t)))
+    acc = _get(rec, "acc")
+    gyr = _get(rec, "gyr")
+    temp = _get(rec, "temp")
+    acc_ref, gyr_ref = _get(rec, "acc_ref"), _get(rec, "gyr_ref")
+    pos, quat = _get(rec, "pos_ref"), _get(rec, "quat_ref")
+    raw = {"acc": None if acc is None else np.asarray(acc, np.float64), "gyr": None if gyr is None else np.asarray(gyr, np.float64)}
+    decim = 1
+    if gyr_ref is None and pos is not None and quat is not None:
+        ref = K.reference_from_pose(t, pos, quat, pose_sigma)
+        f, w, wdot, valid = ref["acc_ref"], ref["gyr_ref"], ref["wdot_ref"], ref["valid"]
+        h0 = K.gaussian_kernels(pose_sigma, dt)[0]
+        for s in ("acc", "gyr"):
+            if raw[s] is not None:
+                raw[s] = K._conv(raw[s], h0)
+        if temp is not None:
+            temp = K._conv(np.asarray(temp, np.float64)[:, None], h0)[:, 0]
+        decim = max(1, int(round(pose_sigma / dt)))
+        notes.append(f"reference derived from the pose (Gaussian sigma {pose_sigma * 1e3:.0f} ms); outputs smoothed alike, decimated by {decim}")
+        smoothed = True
+    else:
+        if gyr_ref is None and acc_ref is None:
+            raise ValueError("diagnose needs reference motion: gyr_ref/acc_ref or pos_ref+quat_ref")
+        smoothed = False
+        w = np.zeros((len(t), 3)) if gyr_ref is None else np.asarray(gyr_ref, np.float64)
+        f = None if acc_ref is None else np.asarray(acc_ref, np.float64)
+        if f is None:
+            if acc is not None:
+                notes.append("no acc_ref: accelerometer not diagnosed; g-sensitivity uses the measured acc")
+            f = np.zeros((len(t), 3))
+        wdot = K.derivative5(w, dt) if ref_sigma_samples <= 0 else K.derivative(w, ref_sigma_samples * dt, dt)
+        valid = np.isfinite(w).all(1) & np.isfinite(f).all(1)
+    sl = slice(None, None, decim)
+    t, f, w, wdot, valid = t[sl], f[sl], w[sl], wdot[sl], valid[sl]
+    temp = None if temp is None else np.asarray(temp, np.float64)[sl]
+    for s in raw:
+        if raw[s] is not None:
+            raw[s] = raw[s][sl]
+    dt = dt * decim
+    n = len(t)
+    block = split_blocks(n, n_blocks)
+    dT = np.zeros(n) if temp is None else temp - np.mean(temp[valid])
+    tc = t - 0.5 * (t[0] + t[-1])
+    f = np.where(valid[:, None], f, 0.0)
+    w = np.where(valid[:, None], w, 0.0)
+    wdot = np.where(valid[:, None], wdot, 0.0)
+    out: dict[str, SensorData] = {}
+    for s in ("acc", "gyr"):
+        if raw[s] is None:
+            continue
+        if s == "acc" and acc_ref is None and gyr_ref is not None:
+            continue
+        if s == "gyr" and gyr_ref is None and pos is None:
+            continue
+        x = f if s == "acc" else w
+        if s == "gyr" and acc_ref is None and raw["acc"] is not None and pos is None:
+            sca, bia = _spec(rec, "acc", raw["acc"], f, valid, notes)
+            f = (raw["acc"] - bia) / sca
+        sc, bi = _spec(rec, s, raw[s], x, valid, notes)
+        y = (raw[s] - bi) / sc
+        is_counts = (not smoothed) and str(_get(rec, f"{s}_unit") or "LSB") == "LSB"
+        inp = E.Inputs(f, w, wdot, tc, dT, np.asarray(dt))
+        out[s] = SensorData(s, y, raw[s] if is_counts else None, sc, bi, inp, valid.copy(), block, temp is not None)
+    return Prepared(out, t, temp, dt, notes)
+
+
+class SensorResult(NamedTuple):
+    """Everything the report needs about one sensor."""
+
+    sensor: str
+    selected: list[str]
+    decisions: dict
+    mds: dict
+    warnings: list[str]
+    base_all: RefitResult  # baseline fitted on all fit rows
+    final_all: RefitResult  # baseline + named effects, joint nonlinear refit on all fit rows
+    fit_rows: np.ndarray
+    heldout_path: list[float]
+    saturation: dict | None
+    tau_lin: float
+    ar_orders: list[int]
+    ar_sigma: list[float]
+
+
+def _theta_with_tau(sensor: str, tau: float) -> np.ndarray:
+    th = np.zeros(E.N_THETA[sensor])
+    th[E.slot(sensor, "time_offset").start] = tau
+    return th
+
+
+def _edge_rows(valid: np.ndarray, tau: float, dt: float) -> np.ndarray:
+    m = valid.copy()
+    e = int(np.ceil(abs(tau) / dt)) + 3
+    m[:e] = False
+    m[-e:] = False
+    return m
+
+
+def _baseline_resid(kind, sd, theta, rows):
+    x, z = linearize_baseline(kind, sd, E.identity_beta(kind), theta)
+    nb = E.N_BASE[kind]
+    a = x[rows].reshape(-1, nb)
+    d = np.linalg.lstsq(a, z[rows].reshape(-1), rcond=None)[0]
+    return z - x @ d, E.identity_beta(kind) + d
+
+
+def _whitened_rss(resid, ars, rows):
+    tot = 0.0
+    for i in range(3):
+        ok = rows & row_ok(rows, ars[i].order)
+        u = apply_filter(np.where(rows, resid[:, i], 0.0), ars[i])[ok]
+        tot += float(u @ u)
+    return tot
+
+
+def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) -> SensorResult:
+    """Locate-name-refit for one sensor; ``n_tests`` is the Bonferroni count of the recording."""
+    s = sd.sensor
+    level = cfg.alpha / n_tests
+    dt = float(sd.inp.dt)
+    warnings: list[str] = []
+    cands = candidates(kind, sd)
+    pre: list[str] = []
+    decisions: dict = {}
+    # coarse time offset: cross-correlation over +-max_lag_s, then a likelihood-ratio check
+    x_in = np.asarray(sd.inp.f if s == "acc" else sd.inp.w)
+    max_lag = int(min(cfg.max_lag_s / dt, len(sd.y) // 10))
+    lag = coarse_lag(sd.y, x_in, sd.valid, max_lag)
+    tau_lin = 0.0
+    coarse = None
+    if lag != 0:
+        tau_c = lag * dt
+        rows = _edge_rows(sd.valid, tau_c, dt)
+        r0, _ = _baseline_resid(kind, sd, _theta_with_tau(s, 0.0), rows)
+        r1, _ = _baseline_resid(kind, sd, _theta_with_tau(s, tau_c), rows)
+        ars = [fit_ar(r1[:, i], rows , cfg.max_ar_order) for i in range(3)]
+        stat = _whitened_rss(r0, ars, rows) - _whitened_rss(r1, ars, rows)
+        if stat > critical_value(level, 1):
+            from scipy import stats as _st
+
+            coarse = (float(stat), float(_st.chi2.logsf(stat, 1) / np.log(10)))
+            tau_lin = tau_c
+            pre.append("time_offset")
+            warnings.append(f"{s}: coarse search found a large time offset of {tau_c * 1e3:.1f} ms ({lag} samples); refined below")
+    fit_rows = _edge_rows(sd.valid, tau_lin, dt)
+    theta_lin = _theta_with_tau(s, tau_lin)
+    resid, beta = _baseline_resid(kind, sd, theta_lin, fit_rows)
+    x, z = linearize(kind, sd, beta, theta_lin)
+    plateau = saturation_plateau(sd.raw)
+    sat_info = None
+    prev = None
+    nb = E.N_BASE[kind]
+    for it in range(cfg.max_passes):
+        ars = [fit_ar(resid[:, i], fit_rows , cfg.max_ar_order) for i in range(3)]
+        if plateau is not None and it == 0:
+            lim, pmask = plateau
+            pred = sd.y - resid
+            st = saturation_stat(sd, pred, resid, ars, fit_rows , lim)
+            from scipy import stats as _st
+
+            lp = float(_st.chi2.logsf(max(st, 0.0), 1) / np.log(10))
+            sel = lp < np.log10(level)
+            sat_info = {"limit": lim, "n_clipped": int(pmask.sum()), "stat": st, "log10_p": lp, "selected": bool(sel)}
+            if sel:
+                fit_rows = fit_rows & ~pmask
+                ars = [fit_ar(resid[:, i], fit_rows , cfg.max_ar_order) for i in range(3)]
+        S = build_system(x, z, ars, fit_rows, sd.block)
+        selected, decisions, th, cols = forward_select(S, kind, s, cands, pre, level)
+        full = np.zeros(x.shape[2])
+        full[cols] = th
+        resid = z - x @ full
+        if prev == selected:
+            break
+        prev = selected
+    if coarse is not None:
+        from jaxcal.diagnose.select import Decision
+
+        decisions["time_offset"] = Decision("time_offset", coarse[0], 1, coarse[1], float("nan"), True, "selected (coarse search)")
+    # detectability and confounding, relative to the baseline
+    base = list(range(nb))
+    mds = {}
+    for c in cands:
+        F = projected_information(S, base, group_columns(kind, s, c))
+        comp, worst = minimum_detectable(F, level, cfg.power)
+        mds[c] = {"components": comp.tolist(), "worst": worst, "min": float(comp.min()), "fisher": F.tolist(),
+                  "lambda_star": detectable_noncentrality(level, F.shape[0], cfg.power)}
+        if c in E.PLAUSIBLE and float(np.median(comp)) > E.PLAUSIBLE[(c, s)]:
+            warnings.append(
+                f"{s} {c}: not excited - smallest detectable size {float(np.median(comp)):.3g} {E.UNITS[(c, s)]} "
+                f"exceeds a plausible {E.PLAUSIBLE[(c, s)]:.3g}; needs {EXCITE[c]}"
+            )
+    if sat_info is not None or sd.raw is not None:
+        pred = sd.y - resid
+        mds["saturation"] = {"depth_lsb": saturation_mds(sd, pred, ars, fit_rows , level, cfg.power)}
+    confounded: dict[str, list[str]] = {}
+    for i, a in enumerate(cands):
+        for b in cands[i + 1 :]:
+            rho = canonical_correlation(S, base, group_columns(kind, s, a), group_columns(kind, s, b))
+            if rho > cfg.confound_threshold:
+                confounded.setdefault(a, []).append(b)
+                confounded.setdefault(b, []).append(a)
+                hint = EXCITE.get(a, "") if a.startswith("temperature") or b.startswith("temperature") else EXCITE.get(b, "")
+                if {a, b} == {"temperature_bias", "bias_drift"}:
+                    hint = "the temperature changes monotonically with time, so a temperature coefficient and a bias drift look alike; a heat-and-cool cycle separates them"
+                warnings.append(f"{s}: {a} and {b} are confounded in this recording (canonical correlation {rho:.3f}); the data cannot tell them apart - {hint}")
+    for c in confounded:
+        if c in decisions:
+            decisions[c] = decisions[c]._replace(reason=decisions[c].reason + f"; confounded with {', '.join(confounded[c])}")
+    order = [c for c in selected]
+    path = heldout_rms_path(S, kind, s, order)
+    if tau_lin != 0.0:
+        # baseline held-out rms at zero time offset (the path starts at the linearisation point)
+        xb, zb = linearize_baseline(kind, sd, E.identity_beta(kind), np.zeros(E.N_THETA[s]))
+        Sb = build_system(xb, zb, ars, fit_rows, sd.block)
+        path[0] = heldout_rms_path(Sb, kind, s, [])[0]
+    theta0 = full[nb:] + theta_lin
+    beta0 = beta + full[:nb]
+    r_base, b_base = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
+    zt = np.zeros(E.N_THETA[s])
+    base_all = RefitResult(b_base, zt, np.zeros(nb), zt, float("nan"), r_base)
+    if order:
+        final_all = refit(kind, s, beta0, theta0, order, sd.inp, sd.y, fit_rows, ars)
+    else:
+        final_all = base_all
+    return SensorResult(
+        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars],
+    )

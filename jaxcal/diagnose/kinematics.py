@@ -1,0 +1,126 @@
+"""Reference motion for the diagnosis: rates, angular acceleration and specific force.
+
+From ``gyr_ref`` the angular acceleration is a smoothed derivative. From a reference pose
+(``pos_ref``, ``quat_ref``, e.g. motion capture) everything is derived with one Gaussian kernel
+``h`` of width ``sigma`` seconds: body rate from consecutive relative rotations, then ``h * w``;
+world acceleration as ``h'' * p`` (second derivative of the smoothed position); angular
+acceleration as ``h' * w``. Because differentiation amplifies mocap noise the derived reference is
+band-limited, so the sensor outputs must be smoothed by the same ``h`` before they are compared
+(:func:`smooth`); after smoothing, samples are decimated so that the residual noise stays nearly
+white. Samples within the kernel support of a pose gap (NaN) are flagged invalid.
+
+Conventions: quaternions Hamilton ``[w, x, y, z]`` body to world, ``R(t+dt) = R(t) Exp(w dt)``;
+specific force ``f = R^T (a / g0 + e_z)`` in g (at rest z up it reads ``+1`` on z).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from jaxcal.diagnose.effects import G0
+from jaxcal.rotation import log_so3, matrix_from_quat
+
+
+def gaussian_kernels(sigma: float, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Discrete Gaussian smoother and its first/second derivative kernels (support +-4 sigma).
+
+    The smoother sums to 1, the first-derivative kernel maps ``t`` to 1 and the second maps
+    ``t^2/2`` to 1 exactly (moment-corrected), so polynomials up to degree 2 are differentiated
+    without bias.
+    """
+    half = max(1, int(np.ceil(4.0 * sigma / dt)))
+    tk = np.arange(-half, half + 1) * dt
+    g = np.exp(-0.5 * (tk / sigma) ** 2)
+    h0 = g / g.sum()
+    h1 = -tk * g
+    h1 = h1 / np.sum(h1 * (-tk))  # (h1 * x)(t) = sum h1[k] x(t - tk): maps x = t to 1
+    h2 = (tk**2 / sigma**2 - 1.0) * g
+    h2 = h2 - h2.sum() * h0  # kill the constant response
+    h2 = h2 / np.sum(h2 * tk**2 / 2.0)
+    return h0, h1, h2
+
+
+def _conv(x: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """``(h * x)(t) = sum_k h[k] x(t - t_k)`` along axis 0 with edge padding ('same' size)."""
+    half = (len(h) - 1) // 2
+    xp = np.concatenate([np.repeat(x[:1], half, 0), x, np.repeat(x[-1:], half, 0)], axis=0)
+    out = np.stack([np.convolve(xp[:, c], h, mode="valid") for c in range(x.shape[1])], axis=1)
+    return out
+
+
+def smooth(x: np.ndarray, sigma: float, dt: float) -> np.ndarray:
+    """Gaussian smoothing of an (N, C) signal (the same kernel as the pose derivatives)."""
+    return _conv(np.asarray(x, np.float64), gaussian_kernels(sigma, dt)[0])
+
+
+def derivative(x: np.ndarray, sigma: float, dt: float) -> np.ndarray:
+    """Smoothed first time derivative of an (N, C) signal (per second)."""
+    return _conv(np.asarray(x, np.float64), gaussian_kernels(sigma, dt)[1])
+
+
+def derivative5(x: np.ndarray, dt: float) -> np.ndarray:
+    """Five-point central difference (error O(dt^4)) of an (N, C) signal; one-sided at the ends."""
+    x = np.asarray(x, np.float64)
+    d = np.gradient(x, dt, axis=0)
+    d[2:-2] = (x[:-4] - 8 * x[1:-3] + 8 * x[3:-1] - x[4:]) / (12 * dt)
+    return d
+
+
+def _gap_mask(bad: np.ndarray, half: int) -> np.ndarray:
+    """True where no bad sample lies within ``half`` samples."""
+    k = np.ones(2 * half + 1)
+    return np.convolve(bad.astype(float), k, mode="same") == 0
+
+
+def reference_from_pose(
+    t: np.ndarray, pos: np.ndarray, quat: np.ndarray, sigma: float
+) -> dict[str, np.ndarray]:
+    """Body rate, angular acceleration and specific force from a pose track, smoothed by ``sigma`` s.
+
+    Args:
+        t: (N,) uniform sample times (s).
+        pos: (N, 3) reference-point position in the world frame (m), NaN in gaps.
+        quat: (N, 4) attitude, Hamilton ``[w, x, y, z]``, body to world, NaN in gaps.
+        sigma: Gaussian kernel width (s).
+
+    Returns:
+        ``{"gyr_ref": (N, 3) rad/s, "wdot_ref": (N, 3) rad/s^2, "acc_ref": (N, 3) g,
+        "valid": (N,) bool}`` with ``valid`` False within the kernel support of a gap.
+    """
+    t = np.asarray(t, np.float64)
+    dt = float(np.median(np.diff(t)))
+    pos = np.asarray(pos, np.float64)
+    quat = np.asarray(quat, np.float64)
+    bad = ~(np.isfinite(pos).all(1) & np.isfinite(quat).all(1))
+    idx = np.arange(len(t))
+    good = ~bad
+    if good.sum() < 3:
+        raise ValueError("pose reference has fewer than 3 finite samples")
+    pos_f = np.stack([np.interp(idx, idx[good], pos[good, c]) for c in range(3)], 1)
+    q = quat.copy()
+    q[bad] = np.nan
+    # nearest good quaternion fills gaps (those samples are flagged invalid anyway)
+    near = np.searchsorted(idx[good], idx).clip(0, good.sum() - 1)
+    q = np.where(bad[:, None], quat[good][near], quat)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    # hemisphere continuity
+    sgn = np.sign(np.sum(q[1:] * q[:-1], axis=1))
+    sgn = np.concatenate([[1.0], np.cumprod(np.where(sgn == 0, 1.0, sgn))])
+    q = q * sgn[:, None]
+    r = np.asarray(matrix_from_quat(q))
+    rel = np.einsum("nji,njk->nik", r[:-1], r[1:])  # R_n^T R_{n+1}
+    w_mid = np.asarray(log_so3(rel)) / dt  # rate at t_n + dt/2
+    w = np.empty_like(pos_f)
+    w[1:-1] = 0.5 * (w_mid[1:] + w_mid[:-1])
+    w[0], w[-1] = w_mid[0], w_mid[-1]
+    h0, h1, h2 = gaussian_kernels(sigma, dt)
+    half = (len(h0) - 1) // 2
+    w_s = _conv(w, h0)
+    wdot = _conv(w, h1)
+    a_world = _conv(pos_f, h2)
+    # gravity part smoothed like the sensor output; the kinematic part is already band-limited
+    f = _conv(r[:, 2, :], h0) + np.einsum("nji,nj->ni", r, a_world / G0)
+    valid = _gap_mask(bad, half + 1)
+    valid[: half + 1] = False
+    valid[-half - 1 :] = False
+    return {"gyr_ref": w_s, "wdot_ref": wdot, "acc_ref": f, "valid": valid}

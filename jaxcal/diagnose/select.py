@@ -1,0 +1,393 @@
+"""Naming effects: regressors, coloured-noise-aware tests, forward selection, detectability.
+
+For one sensor the model is linearised around the fitted baseline (all effect parameters zero,
+except a coarse time offset when one was found): ``y ~ f0 + J_beta d_beta + J_theta theta``
+with the Jacobians from JAX autodiff (:func:`jaxcal.diagnose.effects.regressors`). Residual and
+regressors are prewhitened per axis (:mod:`jaxcal.diagnose.whiten`) and reduced to Gram
+matrices per contiguous time block (default 8 blocks).
+
+* **Test**: adding effect group ``g`` with ``p`` parameters lowers the whitened RSS by ``D``;
+  under "effect absent" ``D ~ chi2(p)``. A group is a candidate when ``D`` passes
+  ``chi2.isf(alpha / K, p)`` (Bonferroni over all ``K`` candidates of the recording) **and** it
+  lowers the held-out RSS in leave-one-block-out cross-validation: for every block, parameters
+  fitted on the other blocks predict that block, which the fit never saw.
+* **Forward selection**: the passing candidate with the smallest p-value joins the model; repeat
+  until none passes. Noise model and selection are iterated (AR refitted on the residual of the
+  selected model) until the selected set is stable.
+* **Minimum detectable size** (MDS): with Fisher information ``F_g`` of a group (whitened Gram
+  after projecting out the baseline), the size of parameter component ``j`` detected with
+  probability ``power`` at the test's level is ``sqrt(lambda*(p) / F_g[j, j])``, where
+  ``lambda*`` is the non-centrality at which ``ncx2(p, lambda)`` exceeds the critical value with
+  that probability.
+* **Confounding**: the largest canonical correlation between two groups' whitened regressors
+  (baseline projected out); above 0.95 the data cannot tell them apart.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache, partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy import optimize, stats
+
+from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.whiten import ARModel, apply_filter, fit_ar, row_ok
+
+
+class SensorData(NamedTuple):
+    """One sensor of a recording, ready for diagnosis (numpy, float64).
+
+    ``y``: (N, 3) output in physical units via the spec values (``raw = y * spec_scale +
+    spec_bias``); ``raw``: (N, 3) counts (LSB) or None when the recording is already physical;
+    ``inp``: :class:`~jaxcal.diagnose.effects.Inputs`; ``valid``: (N,) bool; ``block``: (N,) int
+    contiguous time-block id used for cross-validation.
+    """
+
+    sensor: str
+    y: np.ndarray
+    raw: np.ndarray | None
+    spec_scale: np.ndarray
+    spec_bias: np.ndarray
+    inp: E.Inputs
+    valid: np.ndarray
+    block: np.ndarray
+    has_temp: bool
+
+
+class SelectConfig(NamedTuple):
+    """Test level and search settings."""
+
+    alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
+    power: float = 0.8  # power that defines the minimum detectable size
+    max_lag_s: float = 0.5  # coarse time-offset search range (s)
+    max_ar_order: int = 64
+    confound_threshold: float = 0.95
+    max_passes: int = 3
+
+
+# ----------------------------------------------------------------------------- linearisation
+
+
+@partial(jax.jit, static_argnames=("kind", "sensor"))
+def _linearize(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
+    jb, jt = E.regressors(kind, sensor, beta, theta, inp)
+    z = y - E.model_output(kind, sensor, beta, theta, inp)
+    return jb, jt, z
+
+
+def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
+    """``(X (N, 3, B+P), z (N, 3))``: regressors [baseline | effects] and residual at (beta, theta)."""
+    with jax.enable_x64(True):
+        inp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in sd.inp])
+        jb, jt, z = _linearize(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
+        return np.concatenate([np.asarray(jb), np.asarray(jt)], axis=2), np.asarray(z)
+
+
+@partial(jax.jit, static_argnames=("kind", "sensor"))
+def _linearize_base(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
+    u = E.effects_forward(sensor, theta, inp)
+    jb = jax.jacfwd(lambda b: E.baseline_apply(kind, b, u))(beta)
+    return jb, y - E.baseline_apply(kind, beta, u)
+
+
+def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
+    """Like :func:`linearize` but only the baseline columns ``(X (N, 3, B), z (N, 3))``."""
+    with jax.enable_x64(True):
+        inp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in sd.inp])
+        jb, z = _linearize_base(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
+        return np.asarray(jb), np.asarray(z)
+
+
+def fit_baseline(kind: str, sd: SensorData, rows: np.ndarray) -> np.ndarray:
+    """Ordinary least-squares baseline ``beta`` on ``rows`` (the baseline is linear in beta)."""
+    beta0 = E.identity_beta(kind)
+    x, z = linearize(kind, sd, beta0, np.zeros(E.N_THETA[sd.sensor]))
+    nb = E.N_BASE[kind]
+    a = x[rows, :, :nb].reshape(-1, nb)
+    d, *_ = np.linalg.lstsq(a, z[rows].reshape(-1), rcond=None)
+    return beta0 + d
+
+
+# ----------------------------------------------------------------------------- systems
+
+
+class System(NamedTuple):
+    """Normal equations per time block: whitened (``G``, ``g``, ``zz``: (K, Q, Q), (K, Q), (K,))
+    and unwhitened (``Gu``, ``gu``, ``zzu``, physical units) with row counts ``nu`` (K,)."""
+
+    G: np.ndarray
+    g: np.ndarray
+    zz: np.ndarray
+    Gu: np.ndarray
+    gu: np.ndarray
+    zzu: np.ndarray
+    nu: np.ndarray
+
+    @property
+    def G_all(self) -> np.ndarray:
+        return self.G.sum(0)
+
+    @property
+    def g_all(self) -> np.ndarray:
+        return self.g.sum(0)
+
+    @property
+    def zz_all(self) -> float:
+        return float(self.zz.sum())
+
+
+def build_system(x: np.ndarray, z: np.ndarray, ars: list[ARModel], fit_rows: np.ndarray, block: np.ndarray) -> System:
+    """Whiten each axis of ``x`` (N, 3, Q) and ``z`` (N, 3) with its AR model; Grams per block.
+
+    A whitened row belongs to a block only if its whole filter window lies inside that block."""
+    q = x.shape[2]
+    nb = int(block.max()) + 1
+    G, g, zz = np.zeros((nb, q, q)), np.zeros((nb, q)), np.zeros(nb)
+    Gu, gu, zzu, nu = np.zeros((nb, q, q)), np.zeros((nb, q)), np.zeros(nb), np.zeros(nb)
+    for i in range(3):
+        xi = np.where(fit_rows[:, None], x[:, i, :], 0.0)
+        zi = np.where(fit_rows, z[:, i], 0.0)
+        xw = apply_filter(xi, ars[i])
+        zw = apply_filter(zi, ars[i])
+        ok = fit_rows & row_ok(fit_rows, ars[i].order)
+        for k in range(nb):
+            inb = block == k
+            rows = ok & row_ok(inb, ars[i].order)
+            a, b = xw[rows], zw[rows]
+            G[k] += a.T @ a
+            g[k] += a.T @ b
+            zz[k] += float(b @ b)
+            rows = fit_rows & inb
+            a, b = xi[rows], zi[rows]
+            Gu[k] += a.T @ a
+            gu[k] += a.T @ b
+            zzu[k] += float(b @ b)
+            nu[k] += rows.sum()
+    return System(G, g, zz, Gu, gu, zzu, nu)
+
+
+def _solve(G: np.ndarray, g: np.ndarray, cols: list[int]) -> np.ndarray:
+    a = G[np.ix_(cols, cols)]
+    scale = np.sqrt(np.clip(np.diag(a), 1e-300, None))
+    an = a / scale[:, None] / scale[None, :]
+    th = np.linalg.lstsq(an + 1e-12 * np.eye(len(cols)), g[cols] / scale, rcond=None)[0]
+    return th / scale
+
+
+def rss(G: np.ndarray, g: np.ndarray, zz: float, cols: list[int], th: np.ndarray) -> float:
+    """Residual sum of squares ``|z - X_cols th|^2`` from the normal equations."""
+    return float(zz - 2.0 * th @ g[cols] + th @ G[np.ix_(cols, cols)] @ th)
+
+
+def group_columns(kind: str, sensor: str, name: str) -> list[int]:
+    """Columns of effect ``name`` in the [baseline | theta] layout."""
+    sl = E.slot(sensor, name)
+    nb = E.N_BASE[kind]
+    return list(range(nb + sl.start, nb + sl.start + sl.size))
+
+
+def candidates(kind: str, sd: SensorData) -> list[str]:
+    """Smooth effects testable for this sensor and baseline (saturation is handled separately)."""
+    out = []
+    for sl in E.LAYOUT[sd.sensor]:
+        if kind == "affine" and sl.name == "misalignment":
+            continue  # absorbed by the affine baseline
+        if sl.name.startswith("temperature") and not sd.has_temp:
+            continue
+        out.append(sl.name)
+    return out
+
+
+def projected_information(S: System, base: list[int], cols: list[int]) -> np.ndarray:
+    """Fisher information of ``cols`` after projecting out ``base`` (whitened, all blocks)."""
+    G = S.G_all
+    gbb = G[np.ix_(base, base)]
+    gbc = G[np.ix_(base, cols)]
+    sol = np.linalg.lstsq(gbb, gbc, rcond=None)[0]
+    return G[np.ix_(cols, cols)] - gbc.T @ sol
+
+
+@lru_cache(maxsize=None)
+def critical_value(level: float, dof: int) -> float:
+    """Chi-square critical value at ``level``."""
+    return float(stats.chi2.isf(level, dof))
+
+
+@lru_cache(maxsize=None)
+def detectable_noncentrality(level: float, dof: int, power: float) -> float:
+    """Non-centrality ``lambda*`` with ``P(ncx2(dof, lambda*) > crit) = power``."""
+    crit = critical_value(level, dof)
+    return float(optimize.brentq(lambda lam: stats.ncx2.sf(crit, dof, lam) - power, 1e-6, 1e4))
+
+
+def minimum_detectable(F: np.ndarray, level: float, power: float) -> tuple[np.ndarray, float]:
+    """Per-component MDS ``sqrt(lambda*/F_jj)`` and the worst-direction MDS ``sqrt(lambda*/min eig F)``."""
+    p = F.shape[0]
+    lam = detectable_noncentrality(level, p, power)
+    d = np.clip(np.diag(F), 1e-300, None)
+    ev = max(float(np.linalg.eigvalsh(F).min()), 1e-300)
+    return np.sqrt(lam / d), float(np.sqrt(lam / ev))
+
+
+def canonical_correlation(S: System, base: list[int], a: list[int], b: list[int]) -> float:
+    """Largest canonical correlation between two groups' regressors, baseline projected out."""
+    F = projected_information(S, base, a + b)
+    na = len(a)
+    faa, fbb, fab = F[:na, :na], F[na:, na:], F[:na, na:]
+
+    def inv_sqrt(m):
+        w, v = np.linalg.eigh(m)
+        w = np.clip(w, w.max() * 1e-12 + 1e-300, None)
+        return (v / np.sqrt(w)) @ v.T
+
+    m = inv_sqrt(faa) @ fab @ inv_sqrt(fbb)
+    return float(np.clip(np.linalg.svd(m, compute_uv=False).max(), 0.0, 1.0))
+
+
+# ----------------------------------------------------------------------------- coarse time offset
+
+
+def coarse_lag(y: np.ndarray, x: np.ndarray, rows: np.ndarray, max_lag: int) -> int:
+    """Integer lag ``l`` (samples) maximising the explained variance of ``y(t)`` by ``x(t - l)``.
+
+    Cross-correlations for every lag at once by FFT (zero-padded); the score sums over axes
+    ``c_i(l)^2 / |x_i|^2`` (the variance a per-axis scale explains).
+    """
+    n = len(y)
+    yc = np.where(rows[:, None], y - y[rows].mean(0), 0.0)
+    xc = np.where(rows[:, None], x - x[rows].mean(0), 0.0)
+    m = 1 << int(np.ceil(np.log2(2 * n)))
+    fy = np.fft.rfft(yc, m, axis=0)
+    fx = np.fft.rfft(xc, m, axis=0)
+    cc = np.fft.irfft(fy * np.conj(fx), m, axis=0)  # cc[l] = sum_t y(t) x(t - l)
+    lags = np.concatenate([np.arange(0, max_lag + 1), np.arange(-max_lag, 0)])
+    c = cc[lags % m]
+    score = np.sum(c**2 / (np.sum(xc**2, 0) + 1e-300), axis=1)
+    return int(lags[int(np.argmax(score))])
+
+
+# ----------------------------------------------------------------------------- selection
+
+
+class Decision(NamedTuple):
+    """Outcome of testing one candidate at the step it was last considered."""
+
+    name: str
+    stat: float
+    dof: int
+    log10_p: float
+    heldout_gain: float  # whitened held-out RSS decrease (>0: better)
+    selected: bool
+    reason: str
+
+
+def cv_rss(S: System, cols: list[int], whitened: bool = True) -> float:
+    """Leave-one-block-out held-out RSS: block ``k`` predicted by the fit on all other blocks."""
+    G, g, zz = (S.G, S.g, S.zz) if whitened else (S.Gu, S.gu, S.zzu)
+    Gw, gw = S.G.sum(0), S.g.sum(0)
+    tot = 0.0
+    for k in range(S.G.shape[0]):
+        th = _solve(Gw - S.G[k], gw - S.g[k], cols)
+        tot += rss(G[k], g[k], float(zz[k]), cols, th)
+    return tot
+
+
+def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselected: list[str], level: float):
+    """Greedy forward selection on a :class:`System`.
+
+    Returns ``(selected names in order, decisions {name: Decision}, solution on all blocks, cols)``.
+    """
+    nb = E.N_BASE[kind]
+    Ga, ga, zza = S.G_all, S.g_all, S.zz_all
+    cols = list(range(nb))
+    for n in preselected:
+        cols += group_columns(kind, sensor, n)
+    th = _solve(Ga, ga, cols)
+    cur = rss(Ga, ga, zza, cols, th)
+    cur_cv = cv_rss(S, cols)
+    selected = list(preselected)
+    decisions: dict[str, Decision] = {}
+    remaining = [c for c in cands if c not in selected]
+    while remaining:
+        best = None
+        for c in remaining:
+            gc = group_columns(kind, sensor, c)
+            cc = cols + gc
+            t2 = _solve(Ga, ga, cc)
+            stat = cur - rss(Ga, ga, zza, cc, t2)
+            dof = len(gc)
+            lp = float(stats.chi2.logsf(max(stat, 0.0), dof) / np.log(10))
+            sig = lp < np.log10(level)
+            gain = cur_cv - cv_rss(S, cc) if sig else float("nan")
+            ok = sig and gain > 0
+            reason = "selected" if ok else ("not significant" if not sig else "no held-out improvement")
+            decisions[c] = Decision(c, float(stat), dof, lp, float(gain), False, reason)
+            if ok and (best is None or lp < best[1]):
+                best = (c, lp, cc, t2, cur_cv - gain)
+        if best is None:
+            break
+        c, _, cols, th, cur_cv = best
+        decisions[c] = decisions[c]._replace(selected=True)
+        cur = rss(Ga, ga, zza, cols, th)
+        selected.append(c)
+        remaining.remove(c)
+    return selected, decisions, th, cols
+
+
+def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str]) -> list[float]:
+    """Cross-validated held-out RMS (physical units) as the effects of ``order`` are added."""
+    nb = E.N_BASE[kind]
+    cols = list(range(nb))
+    out = []
+    n = max(float(S.nu.sum()), 1.0)
+    for k in range(len(order) + 1):
+        if k > 0:
+            cols = cols + group_columns(kind, sensor, order[k - 1])
+        out.append(float(np.sqrt(max(cv_rss(S, cols, whitened=False), 0.0) / n)))
+    return out
+
+
+# ----------------------------------------------------------------------------- saturation
+
+
+def saturation_plateau(raw: np.ndarray | None) -> tuple[float, np.ndarray] | None:
+    """``(limit, plateau mask (N,))`` if at least 2 samples sit exactly at ``max |raw|``."""
+    if raw is None:
+        return None
+    lim = float(np.max(np.abs(raw)))
+    mask = np.any(np.abs(raw) >= lim, axis=1)
+    if mask.sum() < 2:
+        return None
+    return lim, mask
+
+
+def saturation_stat(sd: SensorData, pred: np.ndarray, resid: np.ndarray, ars: list[ARModel], rows: np.ndarray, limit: float) -> float:
+    """Whitened RSS decrease when the prediction (physical) is clipped at ``+-limit`` LSB."""
+    pred_raw = pred * sd.spec_scale + sd.spec_bias
+    delta = (pred_raw - np.clip(pred_raw, -limit, limit)) / sd.spec_scale
+    tot = 0.0
+    for i in range(3):
+        ok = rows & row_ok(rows, ars[i].order)
+        a = apply_filter(np.where(rows, resid[:, i], 0.0), ars[i])[ok]
+        b = apply_filter(np.where(rows, resid[:, i] + delta[:, i], 0.0), ars[i])[ok]
+        tot += float(a @ a - b @ b)
+    return tot
+
+
+def saturation_mds(sd: SensorData, pred: np.ndarray, ars: list[ARModel], rows: np.ndarray, level: float, power: float) -> float:
+    """Clipping depth (LSB below the predicted peak) detectable with ``power`` (white approximation)."""
+    lam = detectable_noncentrality(level, 1, power)
+    pred_raw = pred * sd.spec_scale + sd.spec_bias
+    peak = float(np.max(np.abs(pred_raw[rows])))
+    sig = np.array([a.sigma for a in ars])
+
+    def nc(depth):
+        ex = np.clip(np.abs(pred_raw[rows]) - (peak - depth), 0.0, None) / sd.spec_scale / sig
+        return float(np.sum(ex**2))
+
+    if nc(peak) < lam:
+        return float("inf")
+    return float(optimize.brentq(lambda d: nc(d) - lam, 0.0, peak))

@@ -1,0 +1,143 @@
+"""Rich-motion recordings with concealed vocabulary effects (for the discrepancy benchmark).
+
+Motion: static holds of ``hold_s`` seconds alternating with smooth rotations (sum of three
+random sinusoids per axis, peak rate about ``w_peak`` rad/s, windowed by ``sin^2``) and a small
+translational acceleration; orientation ``R_{n+1} = R_n Exp(w_n dt)``; specific force
+``f = R^T (a + e_z)`` g; angular acceleration is the exact time derivative (``jax.jvp``).
+Temperature: ``"cycle"`` (heat and cool, ``T0 + A sin^2(pi t / T)``), ``"ramp"`` (monotonic) or
+``"none"``. Sensor: the thesis's baseline per axis ``raw = round(s (u + n) + b)`` with
+``u = effects_forward(theta, inputs)`` (zero ``theta``: the baseline), white noise ``n`` and an
+optional bias random walk, optional saturation at ``+-limit`` LSB.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcal.diagnose import effects as E
+from jaxcal.rotation import integrate_orientation, random_rotation
+
+
+class RichConfig(NamedTuple):
+    """Settings of a simulated rich-motion recording (units in the names)."""
+
+    n: int = 20000
+    fs: float = 100.0
+    w_peak: float = 3.0
+    a_peak_g: float = 0.2
+    hold_s: float = 2.5
+    temp_profile: str = "cycle"
+    temp_base_c: float = 25.0
+    temp_amp_c: float = 15.0
+    acc_noise_g: float = 3e-3
+    gyr_noise_rads: float = 1e-3
+    acc_rw_g_per_sqrt_s: float = 0.0
+    gyr_rw_rads_per_sqrt_s: float = 0.0
+    acc_lsb_per_g: float = 16384.0
+    gyr_lsb_per_rads: float = 7505.747
+    scale_tol: float = 0.03
+    acc_bias_max_lsb: float = 400.0
+    gyr_bias_max_lsb: float = 300.0
+
+
+def _gate(t, hold):
+    ph = jnp.mod(t, 2 * hold)
+    return jnp.where(ph < hold, 0.0, jnp.sin(jnp.pi * (ph - hold) / hold) ** 2)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def motion(key: jax.Array, cfg: RichConfig) -> E.Inputs:
+    """Reference motion ``Inputs`` (f, w, wdot, tc, dT, dt) and the temperature (N,) of one recording."""
+    k1, k2, k3, k4, k5, k6 = jax.random.split(key, 6)
+    dt = 1.0 / cfg.fs
+    t = jnp.arange(cfg.n) * dt
+    fr = jax.random.uniform(k1, (3, 3), minval=0.3, maxval=1.5)
+    ph = jax.random.uniform(k2, (3, 3), maxval=2 * jnp.pi)
+    amp = jax.random.uniform(k3, (3, 3), minval=0.2, maxval=1.0)
+    amp = amp / amp.sum(0, keepdims=True) * cfg.w_peak * jax.random.uniform(k6, (1, 3), minval=0.5, maxval=1.0)
+    fa = jax.random.uniform(k4, (3, 3), minval=0.3, maxval=1.5)
+    aa = jax.random.uniform(k5, (3, 3), minval=-1.0, maxval=1.0) * cfg.a_peak_g / 3.0
+
+    # a net turn about a random axis in every moving window (about 90 deg), so the holds visit
+    # many orientations; plus the oscillation
+    n_seg = int(cfg.n / cfg.fs / (2 * cfg.hold_s)) + 2
+    axes = jax.random.normal(jax.random.fold_in(key, 11), (n_seg, 3))
+    axes = axes / jnp.linalg.norm(axes, axis=1, keepdims=True) * (jnp.pi / cfg.hold_s)
+
+    def rate(tt):
+        s = jnp.sum(amp * jnp.sin(2 * jnp.pi * fr * tt + ph), axis=0)
+        seg = jnp.floor(tt / (2 * cfg.hold_s)).astype(jnp.int32)
+        return _gate(tt, cfg.hold_s) * (s + axes[seg])
+
+    def lin_acc(tt):
+        return _gate(tt, cfg.hold_s) * jnp.sum(aa * jnp.sin(2 * jnp.pi * fa * tt), axis=0)
+
+    w = jax.vmap(rate)(t)
+    wdot = jax.vmap(lambda tt: jax.jvp(rate, (tt,), (1.0,))[1])(t)
+    r0 = random_rotation(jax.random.fold_in(key, 7))
+    rs = integrate_orientation(r0, w[:-1], dt)
+    a = jax.vmap(lin_acc)(t)
+    f = jnp.einsum("nji,nj->ni", rs, a + jnp.array([0.0, 0.0, 1.0]))
+    dur = cfg.n * dt
+    if cfg.temp_profile == "cycle":
+        temp = cfg.temp_base_c + cfg.temp_amp_c * jnp.sin(jnp.pi * t / dur) ** 2
+    elif cfg.temp_profile == "ramp":
+        temp = cfg.temp_base_c + cfg.temp_amp_c * t / dur
+    else:
+        temp = jnp.full_like(t, cfg.temp_base_c)
+    tc = t - 0.5 * (t[0] + t[-1])
+    return E.Inputs(f, w, wdot, tc, temp - jnp.mean(temp), jnp.asarray(dt)), temp
+
+
+@partial(jax.jit, static_argnames=("cfg", "sensor"))
+def _sensor_raw(key, cfg: RichConfig, sensor: str, theta, inp: E.Inputs):
+    ks, kb, kn, kr = jax.random.split(key, 4)
+    spec = cfg.acc_lsb_per_g if sensor == "acc" else cfg.gyr_lsb_per_rads
+    bmax = cfg.acc_bias_max_lsb if sensor == "acc" else cfg.gyr_bias_max_lsb
+    sig = cfg.acc_noise_g if sensor == "acc" else cfg.gyr_noise_rads
+    rw = cfg.acc_rw_g_per_sqrt_s if sensor == "acc" else cfg.gyr_rw_rads_per_sqrt_s
+    s = spec * (1.0 + jax.random.uniform(ks, (3,), minval=-cfg.scale_tol, maxval=cfg.scale_tol))
+    b = jax.random.uniform(kb, (3,), minval=-bmax, maxval=bmax)
+    u = E.effects_forward(sensor, theta, inp)
+    noise = sig * jax.random.normal(kn, u.shape)
+    walk = jnp.cumsum(rw * jnp.sqrt(inp.dt) * jax.random.normal(kr, u.shape), axis=0)
+    return s * (u + noise + walk) + b, s, b
+
+
+def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = None, saturation: dict | None = None) -> tuple[dict, dict]:
+    """One recording (dict, CONVENTIONS.md keys; raw in LSB) and its hidden truth.
+
+    Args:
+        key: PRNG key.
+        cfg: :class:`RichConfig`.
+        effects: ``{(sensor, name): {param: value}}`` concealed smooth effects (vocabulary units).
+        saturation: ``{sensor: limit_lsb}``.
+    """
+    effects = effects or {}
+    saturation = saturation or {}
+    km, ka, kg = jax.random.split(key, 3)
+    inp, temp = motion(km, cfg)
+    rec = {"t": np.arange(cfg.n) / cfg.fs, "fs": cfg.fs, "acc_ref": np.asarray(inp.f), "gyr_ref": np.asarray(inp.w),
+           "acc_lsb_per_g": cfg.acc_lsb_per_g, "gyr_lsb_per_rads": cfg.gyr_lsb_per_rads,
+           "acc_bias_lsb": 0.0, "gyr_bias_lsb": 0.0}
+    if cfg.temp_profile != "none":
+        rec["temp"] = np.asarray(temp)
+    truth: dict = {"theta": {}, "scale": {}, "bias": {}, "wdot": np.asarray(inp.wdot)}
+    for sensor, k in (("acc", ka), ("gyr", kg)):
+        params = {name: p for (s, name), p in effects.items() if s == sensor}
+        theta = E.theta_from_params(sensor, params)
+        raw, s, b = _sensor_raw(k, cfg, sensor, jnp.asarray(theta, jnp.float32), inp)
+        raw = np.round(np.asarray(raw, np.float64))
+        if sensor in saturation:
+            lim = float(saturation[sensor])
+            raw = np.clip(raw, -lim, lim)
+        rec[sensor] = raw
+        truth["theta"][sensor] = theta
+        truth["scale"][sensor] = np.asarray(s)
+        truth["bias"][sensor] = np.asarray(b)
+    return rec, truth
