@@ -1,5 +1,7 @@
 """Simulated datasets: Dataset 1 surrogate (chapter 3) and Dataset 2 (chapter 4)."""
 
+from jaxcal.simulate.dataset1 import Dataset1, Dataset1Config, dataset1
 from jaxcal.simulate.dataset2 import Dataset2, Dataset2Config, Samples, Sequences, dataset2
+from jaxcal.simulate.drift import DriftConfig, DriftData, simulate_drift
 
-__all__ = ["Dataset2", "Dataset2Config", "Samples", "Sequences", "dataset2"]
+__all__ = ["Dataset1", "Dataset1Config", "dataset1", "DriftConfig", "DriftData", "simulate_drift", "Dataset2", "Dataset2Config", "Samples", "Sequences", "dataset2"]
