@@ -99,9 +99,10 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
         "--method",
         required=True,
         choices=method_names(),
-        help="linear | nn (need acc_ref/gyr_ref labels), online-thesis | online (self-calibration from "
-        "rotation sequences; need datasheet values in the metadata), multipos (static poses joined by "
-        "rotations); `jaxcal methods` lists what this build has",
+        help="linear | nn (need acc_ref/gyr_ref labels); online-thesis (thesis chapter 4; needs seq ids and "
+        "datasheet values in the metadata); online (streaming self-calibration; needs seq ids, datasheet values "
+        "optional); multipos (static poses joined by rotations; no labels, no datasheet values). "
+        "`jaxcal methods` lists what this build has",
     )
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed (NN initial weights etc.; default 0)")
@@ -109,9 +110,9 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("nn options")
     g.add_argument("--widths", type=_int_tuple, default=(7500,), help="hidden widths, e.g. 7500 or 5,10,5 (default 7500)")
     g.add_argument("--slope", type=float, default=0.1, help="leaky-ReLU slope (default 0.1)")
-    g.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
-    g.add_argument("--patience", type=int, default=200, help="early-stopping patience in epochs (default 200)")
-    g.add_argument("--max-epochs", type=int, default=5000, help="maximum full-batch epochs (default 5000)")
+    g.add_argument("--lr", type=float, default=1e-2, help="Adam learning rate (default 1e-2)")
+    g.add_argument("--patience", type=int, default=1000, help="early-stopping patience in epochs (default 1000)")
+    g.add_argument("--max-epochs", type=int, default=10000, help="maximum full-batch epochs (default 10000)")
     g.add_argument(
         "--val-fraction",
         type=float,

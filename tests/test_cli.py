@@ -168,6 +168,10 @@ BAD_CASES = {
     "bad csv row": (["apply", "{d}/lin.npz", "{t}/bad.csv", "--out", "{t}/o.npz"], "row 1 (line 3)"),
     "unit mismatch": (["apply", "{d}/lin.npz", "{t}/in_g.npz", "--out", "{t}/o.npz"], "fitted on LSB"),
     "no subcommand": ([], "required"),
+    "sensor not in recording": (["calibrate", "--method", "linear", "{d}/test_gyr.npz", "--out", "{t}/m.npz",
+                                 "--sensors", "acc"], "no 'acc'"),
+    "malformed model": (["apply", "{t}/hollow.npz", "{d}/test_acc.npz", "--out", "{t}/o.npz"], "malformed"),
+    "online without seq": (["calibrate", "--method", "online", "{d}/test_acc.npz", "--out", "{t}/m.npz"], "'gyr'"),
 }
 
 
@@ -178,6 +182,8 @@ def test_bad_input_exits_2_with_one_line(sim, tmp_path, capsys, monkeypatch, cas
     _write_bad_model(tmp_path / "alchemy.npz")
     lin = load_model(sim / "lin.npz")
     save_model(CalibrationModel("linear", ("acc",), {"acc": lin.state["acc"]}, lin.meta), tmp_path / "acc_only.npz")
+    save_model(CalibrationModel("linear", ("acc",), {"acc": {"b": lin.state["acc"]["b"]}}, lin.meta),
+               tmp_path / "hollow.npz")
     (tmp_path / "bad.csv").write_text("t,acc_x,acc_y,acc_z\n0,1,2,3\n0,1,2,3\n")
     np.savez(tmp_path / "in_g.npz", t=np.arange(3.0), acc=np.eye(3), acc_unit=np.asarray("g"))
     argv, needle = BAD_CASES[case]
