@@ -1,0 +1,477 @@
+"""Multi-position self-calibration (Tedaldi, Pretto, Menegatti, ICRA 2014; the imu_tk method).
+
+No labels and no datasheet values are needed: the user holds the IMU still in many orientations
+and turns it by hand in between.
+
+* **Accelerometer** (from the static poses): ``f = A (y - b)`` with ``|f| = 1 g`` in every pose.
+  ``model="9"`` is imu_tk's 9 parameters, ``A = T diag(k)`` with ``T`` unit lower-triangular
+  (3 non-orthogonality terms), 3 scales, 3 biases. ``model="12"`` frees all of ``A`` (12
+  parameters); the ``|f|`` residual is blind to a rotation ``A -> Q A`` (3 gauge directions), so
+  the antisymmetric part of ``A`` is pinned by a residual ``A - A^T``, which costs nothing at the
+  optimum. The two therefore reach the same ``|f|`` fit: they differ in the frame they report.
+* **Gyroscope** (from the motions between poses): ``w = G (y_g - b_g) [- G_s f]`` with a full
+  ``G`` (9 parameters: scales and misalignment w.r.t. the accelerometer frame), the bias ``b_g``
+  from the static intervals, and optionally the g-sensitivity ``G_s`` (9 more). The rates are
+  integrated between consecutive static poses, ``R = prod_n Exp(w_n dt_n)`` (midpoint rate,
+  uneven ``dt`` kept), and under the physical convention (``CONVENTIONS.md``) the gravity
+  direction measured in pose ``j`` must be carried onto pose ``j + 1``: ``R^T u_j = u_{j+1}``.
+
+Everything is initialised from the data: the accelerometer from an axis-aligned ellipsoid fit of
+the pose means (fallback: per-axis min/max), the gyro scale from a grid search over
+``G = s I`` (both signs, 1e-7 .. 10 unit/LSB) of the same residual. Both fits are
+``optimistix.LevenbergMarquardt`` least squares on pure residual functions, run in float64 and
+vmappable over per-pose / per-transition weights (used for leave-poses-out folds).
+
+Data flow: :func:`prepare` (numpy, turns a recording plus static intervals into padded arrays),
+:func:`fit_prepared` (pure JAX), :func:`fit_multipos` (both), :func:`fit_multipos_recording`
+(interval detection with imu_tk's threshold scan, then the fit; returns forward-model
+:class:`~jaxcal.sensor.Affine` pairs for ``jaxcal calibrate --method multipos``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Bool, Float
+
+from jaxcal.rotation import exp_so3
+from jaxcal.sensor import Affine
+from jaxcal.static import detect_static
+
+
+class MultiposConfig(NamedTuple):
+    """Options. ``acc_model``: ``"9"`` or ``"12"``. ``gyro_bias``: ``"static"`` (mean over the
+    static intervals in use) or ``"init"`` (the first interval only, as imu_tk). ``g_sensitivity``:
+    also fit ``G_s``. ``midpoint``: midpoint rates (else the left sample, zero-order hold).
+    ``max_steps``: LM iteration cap."""
+
+    acc_model: str = "9"
+    gyro_bias: str = "static"
+    g_sensitivity: bool = False
+    midpoint: bool = True
+    max_steps: int = 100
+
+
+class InverseAffine(NamedTuple):
+    """Calibration in the applied direction ``x = A (y - b)`` (``A`` unit/LSB, ``b`` LSB)."""
+
+    A: Float[Array, "3 3"]
+    b: Float[Array, "3"]
+
+
+class MultiposData(NamedTuple):
+    """Padded arrays of one recording (see :func:`prepare`). ``P`` poses, ``J = P - 1``
+    transitions of at most ``L`` blocks. Units are the recording's (raw or physical).
+
+    A transition is cut into blocks of ``block`` samples; with ``a_i = y_i dt_i`` (the gyro's rate
+    point times the step) a block stores ``sy = sum a_i``, ``sdt = sum dt_i``,
+    ``c0 = sum_{i<j} a_i x a_j``, ``p1 = sum_{i<j} dt_i a_j`` and ``p2 = sum_{i<j} a_i dt_j``. For
+    any calibration ``w = G (y - b)`` the block's rotation vector to second order (Magnus / BCH,
+    error O(|w dt|^3) per block) is ``G (sy - b sdt) + cof(G) (c0 - b x p1 + b x p2) / 2``, using
+    ``(G u) x (G v) = cof(G) (u x v)``: raw data are summed once, every fit step is cheap.
+    """
+
+    pose_acc: Float[Array, "P 3"]  # mean accelerometer output per static pose
+    pose_gyr: Float[Array, "P 3"]  # mean gyroscope output per static pose
+    pose_n: Float[Array, "P"]  # samples per pose
+    sy: Float[Array, "J L 3"]
+    sdt: Float[Array, "J L"]
+    c0: Float[Array, "J L 3"]
+    p1: Float[Array, "J L 3"]
+    p2: Float[Array, "J L 3"]
+    sacc: Float[Array, "J L 3"]  # block sums of accelerometer output * dt (g-sensitivity)
+    seg_ok: Bool[Array, "J"]  # False: transition unusable (saturated gyro)
+
+
+class MultiposFit(NamedTuple):
+    """Result: ``acc``/``gyr`` calibrations (applied direction), ``gsens`` (3, 3) ((rad/s)/g, zero
+    unless fitted), and the final residual norms of the two least-squares problems."""
+
+    acc: InverseAffine
+    gyr: InverseAffine
+    gsens: Float[Array, "3 3"]
+    acc_cost: Float[Array, ""]
+    gyr_cost: Float[Array, ""]
+
+
+# ------------------------------------------------------------------------------ preparation
+
+
+def prepare(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    intervals: np.ndarray,
+    *,
+    gyr_limit: float | None = None,
+    midpoint: bool = True,
+    block: int = 8,
+) -> MultiposData:
+    """Pose means and padded transition segments (numpy; shapes depend on the data).
+
+    Args:
+        t: (N,) times (s), increasing, uneven allowed.
+        acc, gyr: (N, 3) outputs (LSB or physical).
+        intervals: (P, 2) static ``[start, stop)`` sample indices, in time order.
+        gyr_limit: if given, a transition with any ``|gyr| >= gyr_limit`` is marked unusable.
+        midpoint: rate point of step ``n`` is ``(y_n + y_{n+1}) / 2`` (else ``y_n``).
+        block: samples per integration block (1: exact per-sample product, first order).
+    """
+    t = np.asarray(t, np.float64)
+    acc = np.asarray(acc, np.float64)
+    gyr = np.asarray(gyr, np.float64)
+    iv = np.asarray(intervals, np.int64).reshape(-1, 2)
+    if len(iv) < 2:
+        raise ValueError("multipos needs at least two static intervals")
+    pose_acc = np.stack([acc[a:b].mean(0) for a, b in iv])
+    pose_gyr = np.stack([gyr[a:b].mean(0) for a, b in iv])
+    pose_n = (iv[:, 1] - iv[:, 0]).astype(np.float64)
+    # transition j: from the last sample of pose j to the first sample of pose j + 1
+    spans = [(iv[j, 1] - 1, iv[j + 1, 0]) for j in range(len(iv) - 1)]
+    J = len(spans)
+    L = max(1, max(-(-(b - a) // block) for a, b in spans))
+    out = {k: np.zeros((J, L, 3)) for k in ("sy", "c0", "p1", "p2", "sacc")}
+    sdt = np.zeros((J, L))
+    seg_ok = np.ones(J, bool)
+    for j, (a, b) in enumerate(spans):
+        n = b - a
+        y = 0.5 * (gyr[a:b] + gyr[a + 1 : b + 1]) if midpoint else gyr[a:b]
+        f = 0.5 * (acc[a:b] + acc[a + 1 : b + 1]) if midpoint else acc[a:b]
+        dt = t[a + 1 : b + 1] - t[a:b]
+        pad = (-n) % block
+        y = np.concatenate([y, np.zeros((pad, 3))]).reshape(-1, block, 3)
+        f = np.concatenate([f, np.zeros((pad, 3))]).reshape(-1, block, 3)
+        dt = np.concatenate([dt, np.zeros(pad)]).reshape(-1, block)
+        av = y * dt[..., None]
+        ca = np.cumsum(av, axis=1) - av  # sum_{i<j} a_i, at j
+        cd = (np.cumsum(dt, axis=1) - dt)[..., None]  # sum_{i<j} dt_i, at j
+        nb = av.shape[0]
+        out["sy"][j, :nb] = av.sum(1)
+        out["c0"][j, :nb] = np.cross(ca, av).sum(1)
+        out["p1"][j, :nb] = (cd * av).sum(1)
+        out["p2"][j, :nb] = (ca * dt[..., None]).sum(1)
+        out["sacc"][j, :nb] = (f * dt[..., None]).sum(1)
+        sdt[j, :nb] = dt.sum(1)
+        if gyr_limit is not None and np.any(np.abs(gyr[a : b + 1]) >= gyr_limit):
+            seg_ok[j] = False
+    return MultiposData(pose_acc, pose_gyr, pose_n, out["sy"], sdt, out["c0"], out["p1"], out["p2"],
+                        out["sacc"], seg_ok)
+
+
+# ------------------------------------------------------------------------------ accelerometer
+
+
+def _lower(a: Float[Array, "3"]) -> Float[Array, "3 3"]:
+    z, o = jnp.zeros_like(a[0]), jnp.ones_like(a[0])
+    return jnp.stack([jnp.stack([o, z, z]), jnp.stack([a[0], o, z]), jnp.stack([a[1], a[2], o])])
+
+
+def _acc_matrix(theta: Float[Array, "P"], model: str) -> tuple[Array, Array]:
+    """Normalised-frame ``(A', b')`` from the parameter vector."""
+    if model == "9":
+        return _lower(theta[:3]) * theta[3:6][None, :], theta[6:9]
+    return theta[:9].reshape(3, 3), theta[9:12]
+
+
+def acc_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "P+3"]:
+    """``sqrt(w_i) (|A'(m_i - b')| - 1)`` per pose (normalised pose means ``m_i``), plus the
+    ``A - A^T`` gauge residual of the physical ``A = A' diag(1/s0)`` for the 12-parameter model (zeros for the 9-parameter one)."""
+    m, w, model, s0 = args
+    a, b = _acc_matrix(theta, model)
+    f = (m - b) @ a.T
+    r = jnp.sqrt(w) * (jnp.linalg.norm(f, axis=-1) - 1.0)
+    ap = a * (jnp.mean(s0) / s0)[None, :]  # the physical A, up to one common factor
+    gauge = jnp.stack([ap[0, 1] - ap[1, 0], ap[0, 2] - ap[2, 0], ap[1, 2] - ap[2, 1]]) if model == "12" else jnp.zeros(3, m.dtype)
+    return jnp.concatenate([r, gauge])
+
+
+def ellipsoid_init(m: Float[Array, "P 3"], w: Float[Array, "P"]) -> tuple[Array, Array]:
+    """Centre and semi-axes of the axis-aligned ellipsoid through weighted points (least squares
+    on ``a x^2 + b y^2 + c z^2 + d x + e y + f z = 1``); per-axis (max + min) / 2 and (max - min) / 2
+    where that fit is degenerate."""
+    mu = jnp.sum(w[:, None] * m, 0) / jnp.sum(w)
+    sd = jnp.sqrt(jnp.sum(w[:, None] * (m - mu) ** 2, 0) / jnp.sum(w)) + 1e-12
+    x = (m - mu) / sd
+    d = jnp.concatenate([x * x, x], axis=1) * jnp.sqrt(w)[:, None]
+    coef, *_ = jnp.linalg.lstsq(d, jnp.sqrt(w), rcond=None)
+    q, l = coef[:3], coef[3:]
+    ok = jnp.all(q > 0)
+    qs = jnp.where(ok, q, 1.0)
+    c = -l / (2 * qs)
+    rhs = 1.0 + jnp.sum(l * l / (4 * qs))
+    r = jnp.sqrt(jnp.maximum(rhs / qs, 1e-24))
+    big = jnp.where(w[:, None] > 0, m, -jnp.inf).max(0)
+    small = jnp.where(w[:, None] > 0, m, jnp.inf).min(0)
+    c_mm, r_mm = 0.5 * (big + small), jnp.maximum(0.5 * (big - small), 1e-12)
+    ok = ok & jnp.all(jnp.isfinite(r)) & jnp.all(r * sd > 0.2 * r_mm)
+    return jnp.where(ok, mu + c * sd, c_mm), jnp.where(ok, r * sd, r_mm)
+
+
+def fit_acc(
+    pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], model: str = "9", max_steps: int = 100
+) -> tuple[InverseAffine, Array]:
+    """Accelerometer multi-position fit (weights ``w`` per pose; 0 leaves a pose out)."""
+    c0, s0 = ellipsoid_init(pose_acc, w)
+    m = (pose_acc - c0) / s0
+    if model == "9":
+        theta0 = jnp.concatenate([jnp.zeros(3), jnp.ones(3), jnp.zeros(3)]).astype(m.dtype)
+    elif model == "12":
+        theta0 = jnp.concatenate([jnp.eye(3).ravel(), jnp.zeros(3)]).astype(m.dtype)
+    else:
+        raise ValueError(f"acc_model must be '9' or '12', got {model!r}")
+    solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
+    sol = optx.least_squares(acc_residuals, solver, theta0, args=(m, w, model, s0), max_steps=max_steps, throw=False)
+    a, b = _acc_matrix(sol.value, model)
+    cost = jnp.sum(acc_residuals(sol.value, (m, w, model, s0)) ** 2)
+    return InverseAffine(A=a / s0[None, :], b=c0 + s0 * b), cost
+
+
+# ------------------------------------------------------------------------------ gyroscope
+
+
+def carry_rotation(w: Float[Array, "J L 3"], dt: Float[Array, "J L"]) -> Float[Array, "J 3 3"]:
+    """``R_j = prod_l Exp(w_jl dt_jl)`` (ordered, left to right) for every transition.
+
+    Padding steps have ``dt = 0`` (identity). The product is a pairwise tree reduction
+    (``log2 L`` batched matrix products) rather than an ``L``-step scan: same result, far fewer
+    sequential steps.
+    """
+    L = w.shape[1]
+    n = 1 << max(0, int(np.ceil(np.log2(max(L, 1)))))
+    r = exp_so3(w * dt[..., None])
+    if n > L:
+        eye = jnp.broadcast_to(jnp.eye(3, dtype=r.dtype), (r.shape[0], n - L, 3, 3))
+        r = jnp.concatenate([r, eye], axis=1)
+    while r.shape[1] > 1:
+        r = r[:, 0::2] @ r[:, 1::2]
+    return r[:, 0]
+
+
+def cofactor(g: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """Cofactor matrix, ``(G u) x (G v) = cof(G) (u x v)`` for every ``u, v``."""
+    return jnp.stack([jnp.cross(g[:, 1], g[:, 2]), jnp.cross(g[:, 2], g[:, 0]), jnp.cross(g[:, 0], g[:, 1])], axis=1)
+
+
+def block_rotvecs(
+    g: Float[Array, "3 3"], b: Float[Array, "3"], gsens: Float[Array, "3 3"], d: MultiposData, seg_f_off: Float[Array, "J L 3"]
+) -> Float[Array, "J L 3"]:
+    """Rotation vector of every block for ``w = G (y - b) - G_s f`` (second-order Magnus; the
+    g-sensitivity term enters to first order, ``seg_f_off`` = block sums of calibrated ``f dt``)."""
+    first = (d.sy - b * d.sdt[..., None]) @ g.T
+    cross = d.c0 - jnp.cross(b, d.p1) + jnp.cross(b, d.p2)
+    return first + 0.5 * cross @ cofactor(g).T - seg_f_off @ gsens.T
+
+
+def _calibrated_acc_sums(acc: InverseAffine, d: MultiposData) -> Float[Array, "J L 3"]:
+    return (d.sacc - acc.b * d.sdt[..., None]) @ acc.A.T
+
+
+def gyr_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "J*3"]:
+    """``sqrt(w_j) (R_j^T u_j - u_{j+1})`` for every transition ``j`` (physical convention)."""
+    d, bg, s0, gs, fsum, u, wj = args
+    g = s0 * (jnp.eye(3, dtype=theta.dtype) + theta[:9].reshape(3, 3))
+    gsm = theta[9:18].reshape(3, 3) if gs else jnp.zeros((3, 3), theta.dtype)
+    r = carry_rotation(block_rotvecs(g, bg, gsm, d, fsum), jnp.ones_like(d.sdt))
+    pred = jnp.einsum("jba,jb->ja", r, u[:-1])  # R^T u_j
+    return (jnp.sqrt(wj)[:, None] * (pred - u[1:])).ravel()
+
+
+def gyro_angle_errors(
+    gyr: InverseAffine, gsens: Float[Array, "3 3"], acc: InverseAffine, data: MultiposData
+) -> Float[Array, "J"]:
+    """Angle (rad) between the gyro-carried gravity direction of pose ``j`` and pose ``j + 1``'s."""
+    f = (data.pose_acc - acc.b) @ acc.A.T
+    u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
+    rv = block_rotvecs(gyr.A, gyr.b, gsens, data, _calibrated_acc_sums(acc, data))
+    r = carry_rotation(rv, jnp.ones_like(data.sdt))
+    pred = jnp.einsum("jba,jb->ja", r, u[:-1])
+    c = jnp.sum(pred * u[1:], -1) / jnp.linalg.norm(pred, axis=-1)
+    return jnp.arccos(jnp.clip(c, -1.0, 1.0))
+
+
+def acc_norm_errors(acc: InverseAffine, pose_acc: Float[Array, "P 3"]) -> Float[Array, "P"]:
+    """``| |f_i| - 1 |`` per pose (g) for calibrated pose means."""
+    return jnp.abs(jnp.linalg.norm((pose_acc - acc.b) @ acc.A.T, axis=-1) - 1.0)
+
+
+def fit_prepared(
+    data: MultiposData,
+    config: MultiposConfig = MultiposConfig(),
+    acc_w: Float[Array, "P"] | None = None,
+    gyr_w: Float[Array, "J"] | None = None,
+) -> MultiposFit:
+    """Accelerometer then gyroscope fit on prepared data (pure; vmappable over the weights).
+
+    ``acc_w`` (per pose) and ``gyr_w`` (per transition) default to ones; a zero leaves that pose
+    or transition out (leave-poses-out folds). Unusable transitions (``seg_ok``) are always left
+    out. Call under ``jax.enable_x64(True)`` for raw counts (as :func:`fit_multipos` does).
+    """
+    P = data.pose_acc.shape[0]
+    dtype = data.pose_acc.dtype
+    acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
+    gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
+    gyr_w = gyr_w * data.seg_ok.astype(dtype)
+    acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps)
+    f = (data.pose_acc - acc.b) @ acc.A.T
+    u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
+    # gyro bias from the static intervals (of the poses in use)
+    if config.gyro_bias == "init":
+        bg = data.pose_gyr[0]
+    else:
+        wn = acc_w * data.pose_n
+        bg = jnp.sum(wn[:, None] * data.pose_gyr, 0) / jnp.sum(wn)
+    fsum = _calibrated_acc_sums(acc, data)
+    # scale initialisation: grid over G = s I, both signs (4 per decade)
+    grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
+    zero = jnp.zeros(18 if config.g_sensitivity else 9, dtype)
+
+    def grid_cost(s):
+        return jnp.sum(gyr_residuals(zero, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w)) ** 2)
+
+    costs = jnp.nan_to_num(jax.vmap(grid_cost)(grid), nan=jnp.inf)
+    s0 = grid[jnp.argmin(costs)]
+    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w)
+    solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
+    sol = optx.least_squares(gyr_residuals, solver, zero, args=args, max_steps=config.max_steps, throw=False)
+    g = s0 * (jnp.eye(3, dtype=dtype) + sol.value[:9].reshape(3, 3))
+    gs = sol.value[9:18].reshape(3, 3) if config.g_sensitivity else jnp.zeros((3, 3), dtype)
+    gyr_cost = jnp.sum(gyr_residuals(sol.value, args) ** 2)
+    return MultiposFit(acc, InverseAffine(g, bg), gs, acc_cost, gyr_cost)
+
+
+def fit_multipos(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    intervals: np.ndarray,
+    config: MultiposConfig = MultiposConfig(),
+    *,
+    gyr_limit: float | None = None,
+    block: int = 8,
+) -> MultiposFit:
+    """:func:`prepare` + :func:`fit_prepared` in float64; returns numpy-backed arrays."""
+    with jax.enable_x64(True):
+        data = jax.tree_util.tree_map(
+            jnp.asarray, prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block))
+        fit = jax.jit(fit_prepared, static_argnums=1)(data, config)
+        return jax.tree_util.tree_map(np.asarray, fit)
+
+
+def to_affine(cal: InverseAffine) -> Affine:
+    """The forward model ``y = S x + b`` (``S = A^-1``) of an applied calibration."""
+    return Affine(S=np.linalg.inv(np.asarray(cal.A)), b=np.asarray(cal.b))
+
+
+def default_gyr_limit(gyr: np.ndarray, unit: str) -> float | None:
+    """Saturation limit for raw counts: 32767 for signed, 65535 for unsigned 16-bit data."""
+    if unit != "LSB":
+        return None
+    return 32767.0 if np.min(gyr) < 0 else 65535.0
+
+
+def detect_and_fit(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    config: MultiposConfig = MultiposConfig(),
+    *,
+    init_duration: float | None = None,
+    ks: tuple[float, ...] = tuple(range(1, 11)),
+    window: float = 1.0,
+    min_duration: float = 1.0,
+    gyr_limit: float | None = None,
+) -> tuple[MultiposFit, np.ndarray, float]:
+    """imu_tk's procedure: for each threshold multiplier ``k`` detect the static intervals and
+    fit the accelerometer; keep the ``k`` with the smallest mean squared ``|f| - 1`` residual
+    (at least 9 poses), then fit the gyroscope. Returns ``(fit, intervals, k)``.
+
+    ``init_duration`` defaults to the first run of low acceleration variance: the first 10 % of
+    the recording, capped at 30 s, is a safe guess only if the user rested there; pass it.
+    """
+    t = np.asarray(t, np.float64)
+    if init_duration is None:
+        init_duration = min(30.0, 0.1 * (t[-1] - t[0]))
+    best = None
+    for k in ks:
+        det = detect_static(t, acc, k=k, init_duration=init_duration, window=window, min_duration=min_duration)
+        if len(det.intervals) < 9:
+            continue
+        with jax.enable_x64(True):
+            pa = jnp.asarray(np.stack([np.asarray(acc, np.float64)[a:b].mean(0) for a, b in det.intervals]))
+            _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps)
+        score = float(cost) / len(pa)
+        if best is None or score < best[0]:
+            best = (score, det)
+    if best is None:
+        raise ValueError("multipos: fewer than 9 static poses found for every threshold; record more poses")
+    det = best[1]
+    fit = fit_multipos(t, acc, gyr, det.intervals, config, gyr_limit=gyr_limit)
+    return fit, det.intervals, det.k
+
+
+def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), **kwargs) -> tuple[Affine, Affine]:
+    """Calibrate a :class:`~jaxcal.recording.Recording` (or recording dict) by multi-position
+    self-calibration. Needs ``acc`` and ``gyr``; no labels, no datasheet values.
+
+    Returns the forward models ``(acc_model, gyr_model)`` as :class:`~jaxcal.sensor.Affine`
+    (``y = S x + b``, ``x`` in g and rad/s, ``y`` in the recording's units). The g-sensitivity
+    option is not representable as an ``Affine`` and is off here.
+    """
+    get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
+    t, acc, gyr = get("t"), get("acc"), get("gyr")
+    if acc is None or gyr is None:
+        raise ValueError("multipos needs both 'acc' and 'gyr'")
+    if config.g_sensitivity:
+        raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
+    kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), get("gyr_unit") or "LSB"))
+    fit, _, _ = detect_and_fit(t, acc, gyr, config, **kwargs)
+    return to_affine(fit.acc), to_affine(fit.gyr)
+
+
+class HeldOut(NamedTuple):
+    """Leave-poses-out scores: ``acc_err`` (P,) ``| |f| - 1 |`` in g of each pose from the fold
+    that left it out, ``gyr_err`` (J,) the carried-gravity angle (rad) of each transition from
+    the fold that left it out (NaN for unusable transitions), and the fold of each."""
+
+    acc_err: np.ndarray
+    gyr_err: np.ndarray
+    pose_fold: np.ndarray
+    trans_fold: np.ndarray
+
+
+def fold_ids(n: int, n_folds: int) -> np.ndarray:
+    """Interleaved folds: item ``i`` goes to fold ``i mod n_folds``."""
+    return np.arange(n) % n_folds
+
+
+def leave_poses_out(
+    data: MultiposData, config: MultiposConfig = MultiposConfig(), n_folds: int | None = None
+) -> HeldOut:
+    """Held-out scores with interleaved folds over poses (and transitions), all folds fitted in
+    one ``vmap`` of :func:`fit_prepared`. ``n_folds=None`` leaves one pose (and one transition)
+    out at a time. Fold ``k`` leaves out poses ``i = k mod n_folds`` from the accelerometer fit and
+    transitions ``j = k mod n_folds`` from the gyroscope fit, then scores exactly those.
+    """
+    P = data.pose_acc.shape[0]
+    F = P if n_folds is None else n_folds
+    pf, tf = fold_ids(P, F), fold_ids(P - 1, F)
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        aw = jnp.asarray((pf[None, :] != np.arange(F)[:, None]).astype(np.float64))
+        gw = jnp.asarray((tf[None, :] != np.arange(F)[:, None]).astype(np.float64))
+
+        @jax.jit
+        def run(aw, gw):
+            fits = jax.vmap(lambda a, g: fit_prepared(d, config, a, g))(aw, gw)
+            ea = jax.vmap(lambda f: acc_norm_errors(f.acc, d.pose_acc))(fits)
+            eg = jax.vmap(lambda f: gyro_angle_errors(f.gyr, f.gsens, f.acc, d))(fits)
+            return ea, eg
+
+        ea, eg = (np.asarray(x) for x in run(aw, gw))
+    acc_err = ea[pf, np.arange(P)]
+    gyr_err = np.where(np.asarray(data.seg_ok), eg[tf, np.arange(P - 1)], np.nan)
+    return HeldOut(acc_err, gyr_err, pf, tf)

@@ -1,0 +1,120 @@
+"""Static-interval detection as in imu_tk (Tedaldi, Pretto, Menegatti, ICRA 2014).
+
+The detector looks at the accelerometer only. For each sample it takes the per-axis variance of
+the accelerometer over a centred sliding window of ``2 h + 1`` samples and its magnitude
+``|var| = sqrt(var_x^2 + var_y^2 + var_z^2)``. The threshold is ``k`` times the same magnitude
+computed over an initial rest period (the first ``init_duration`` seconds, which the user keeps
+still); samples below it are static, and runs of static samples at least ``min_duration`` long
+form the intervals. imu_tk scans ``k`` (1, 2, ..., 10) and keeps the ``k`` whose intervals give
+the smallest accelerometer calibration residual; :func:`threshold_scan` returns the candidates and
+the caller (e.g. :func:`jaxcal.multipos.fit_multipos_recording`) makes that choice.
+
+:func:`moving_variance` is pure JAX; turning a mask into intervals has data-dependent output size
+and is plain numpy. Intervals are ``(K, 2)`` int arrays of ``[start, stop)`` sample indices.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+
+class StaticDetection(NamedTuple):
+    """One detector run: ``intervals`` (K, 2) ``[start, stop)``, the per-sample variance magnitude
+    ``var_mag`` (N,) (input unit squared), the ``threshold`` and the multiplier ``k`` used."""
+
+    intervals: np.ndarray
+    var_mag: np.ndarray
+    threshold: float
+    k: float
+
+
+@jax.jit
+def _cumsum0(x: Float[Array, "N 3"]) -> Float[Array, "N+1 3"]:
+    return jnp.concatenate([jnp.zeros_like(x[:1]), jnp.cumsum(x, axis=0)], axis=0)
+
+
+def moving_variance(x: Float[Array, "N 3"], half: int) -> Float[Array, "N 3"]:
+    """Per-axis variance over the centred window ``[n - half, n + half]`` (clipped at the ends).
+
+    Computed from cumulative sums of the mean-removed signal (float64 advisable for raw counts).
+    """
+    x = jnp.asarray(x)
+    x = x - jnp.mean(x, axis=0)
+    n = x.shape[0]
+    c1, c2 = _cumsum0(x), _cumsum0(x * x)
+    idx = jnp.arange(n)
+    lo = jnp.clip(idx - half, 0, n)
+    hi = jnp.clip(idx + half + 1, 0, n)
+    cnt = (hi - lo)[:, None].astype(x.dtype)
+    mean = (c1[hi] - c1[lo]) / cnt
+    return jnp.maximum((c2[hi] - c2[lo]) / cnt - mean * mean, 0.0)
+
+
+def intervals_from_mask(mask: np.ndarray, min_samples: int) -> np.ndarray:
+    """Runs of ``True`` at least ``min_samples`` long as ``(K, 2)`` ``[start, stop)`` indices."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.diff(m.astype(np.int8))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    keep = (stops - starts) >= min_samples
+    return np.stack([starts[keep], stops[keep]], axis=1).astype(np.int64).reshape(-1, 2)
+
+
+def detect_static(
+    t: np.ndarray,
+    acc: np.ndarray,
+    *,
+    k: float = 2.0,
+    init_duration: float = 10.0,
+    window: float = 1.0,
+    min_duration: float = 1.0,
+) -> StaticDetection:
+    """imu_tk's detector with one threshold multiplier ``k``.
+
+    Args:
+        t: (N,) sample times (s).
+        acc: (N, 3) accelerometer (any unit; raw counts fine).
+        k: threshold = ``k`` x the variance magnitude of the initial rest period.
+        init_duration: length (s) of the initial rest period the user kept still. It is always
+            returned as the first interval (imu_tk does the same).
+        window: sliding-window length (s).
+        min_duration: shortest static interval kept (s).
+
+    Returns:
+        :class:`StaticDetection`.
+    """
+    t = np.asarray(t, np.float64)
+    dt = float(np.median(np.diff(t)))
+    half = max(1, int(round(0.5 * window / dt)))
+    with jax.enable_x64(True):
+        a = jnp.asarray(np.asarray(acc, np.float64))
+        var = np.asarray(moving_variance(a, half))
+    var_mag = np.linalg.norm(var, axis=1)
+    n_init = int(np.searchsorted(t, t[0] + init_duration))
+    if n_init < 2 * half + 1:
+        raise ValueError(f"init_duration {init_duration} s holds fewer samples than one window ({window} s)")
+    init_var = np.var(np.asarray(acc, np.float64)[:n_init], axis=0)
+    threshold = float(k * np.linalg.norm(init_var))
+    mask = var_mag < threshold
+    mask[:n_init] = True
+    iv = intervals_from_mask(mask, max(1, int(round(min_duration / dt))))
+    return StaticDetection(iv, var_mag, threshold, float(k))
+
+
+def threshold_scan(
+    t: np.ndarray, acc: np.ndarray, ks: Sequence[float] = tuple(range(1, 11)), **kwargs
+) -> list[StaticDetection]:
+    """:func:`detect_static` for each multiplier in ``ks`` (imu_tk scans 1..10)."""
+    return [detect_static(t, acc, k=k, **kwargs) for k in ks]
+
+
+def static_mask(n: int, intervals: np.ndarray) -> np.ndarray:
+    """(N,) bool mask of the samples inside ``intervals``."""
+    m = np.zeros(n, bool)
+    for a, b in np.asarray(intervals).reshape(-1, 2):
+        m[a:b] = True
+    return m
