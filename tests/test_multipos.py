@@ -171,3 +171,16 @@ def test_xsens_heldout_gyro_and_acc(xsens):
     held = mp.leave_poses_out(data, mp.MultiposConfig(), n_folds=5)
     assert 1e3 * np.sqrt(np.mean(held.acc_err**2)) < 0.5 * _factory_acc_rms_mg(data.pose_acc)
     assert np.degrees(np.nanmedian(held.gyr_err)) < 1.5  # README: factory gyro median 2.3 deg
+
+
+def test_fit_multipos_recording_contract(sim):
+    """The CLI entry point: a recording in, forward models y = S x + b out (imu_tk threshold scan)."""
+    t, acc, gyr = sim
+    rec = {"t": t, "acc": acc, "gyr": gyr, "acc_unit": "LSB", "gyr_unit": "LSB"}
+    acc_model, gyr_model = mp.fit_multipos_recording(rec, init_duration=8.0, window=0.5)
+    np.testing.assert_allclose(acc_model.S, np.linalg.inv(A_ACC), rtol=3e-3, atol=30.0)
+    np.testing.assert_allclose(acc_model.b, B_ACC, atol=2.0)
+    np.testing.assert_allclose(gyr_model.S, np.linalg.inv(A_GYR), rtol=5e-3, atol=40.0)
+    np.testing.assert_allclose(gyr_model.b, B_GYR, atol=0.5)
+    with pytest.raises(ValueError, match="gyr"):
+        mp.fit_multipos_recording({"t": t, "acc": acc})
