@@ -38,7 +38,7 @@ from jaxcal.diagnose.select import (
     saturation_plateau,
     saturation_stat,
 )
-from jaxcal.diagnose.whiten import apply_filter, fit_ar, row_ok
+from jaxcal.diagnose.whiten import apply_filter, fill_index, fit_ar, gap_ok
 
 # Motion/conditions that excite each effect (used in warnings).
 EXCITE = {
@@ -188,6 +188,7 @@ class SensorResult(NamedTuple):
     tau_lin: float
     ar_orders: list[int]
     ar_sigma: list[float]
+    ar_theta: list[float]
 
 
 def _theta_with_tau(sensor: str, tau: float) -> np.ndarray:
@@ -214,9 +215,10 @@ def _baseline_resid(kind, sd, theta, rows):
 
 def _whitened_rss(resid, ars, rows):
     tot = 0.0
+    fi = fill_index(rows)
     for i in range(3):
-        ok = rows & row_ok(rows, ars[i].order)
-        u = apply_filter(np.where(rows, resid[:, i], 0.0), ars[i])[ok]
+        ok = gap_ok(rows, ars[i].memory)
+        u = apply_filter(resid[fi, i], ars[i])[ok]
         tot += float(u @ u)
     return tot
 
@@ -258,8 +260,11 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) 
     sat_info = None
     prev = None
     nb = E.N_BASE[kind]
+    th0 = [1.0, 1.0, 1.0]
     for it in range(cfg.max_passes):
-        ars = [fit_ar(resid[:, i], fit_rows , cfg.max_ar_order) for i in range(3)]
+        ars = [fit_ar(resid[:, i], fit_rows, cfg.max_ar_order, th0[i]) for i in range(3)]
+        if it == 0:
+            th0 = [a.theta for a in ars]
         if plateau is not None and it == 0:
             lim, pmask = plateau
             pred = sd.y - resid
@@ -271,12 +276,16 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) 
             sat_info = {"limit": lim, "n_clipped": int(pmask.sum()), "stat": st, "log10_p": lp, "selected": bool(sel)}
             if sel:
                 fit_rows = fit_rows & ~pmask
-                ars = [fit_ar(resid[:, i], fit_rows , cfg.max_ar_order) for i in range(3)]
+                ars = [fit_ar(resid[:, i], fit_rows, cfg.max_ar_order, th0[i]) for i in range(3)]
         S = build_system(x, z, ars, fit_rows, sd.block)
         selected, decisions, th, cols = forward_select(S, kind, s, cands, pre, level)
         full = np.zeros(x.shape[2])
         full[cols] = th
         resid = z - x @ full
+        # re-level: biases the whitening cannot see (random-walk noise model) from the plain mean
+        off = resid[fit_rows].mean(0)
+        resid = resid - off
+        full[nb - 3 : nb] += off  # the bias columns of both baselines
         if prev == selected:
             break
         prev = selected
@@ -331,5 +340,5 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) 
     else:
         final_all = base_all
     return SensorResult(
-        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars],
+        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars],
     )

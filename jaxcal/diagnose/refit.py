@@ -18,7 +18,7 @@ import numpy as np
 import optimistix as optx
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.whiten import ARModel, row_ok
+from jaxcal.diagnose.whiten import ARModel, fill_index, gap_ok
 
 MAX_TAPS = 65
 
@@ -35,24 +35,35 @@ class RefitResult(NamedTuple):
     resid: np.ndarray
 
 
-def _filters(ars: list[ARModel]) -> tuple[np.ndarray, np.ndarray]:
+def _filters(ars: list[ARModel]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     taps = np.zeros((3, MAX_TAPS))
     sig = np.zeros(3)
+    th = np.ones(3)
     for i, ar in enumerate(ars):
         taps[i, 0] = 1.0
         taps[i, 1 : 1 + len(ar.a)] = -ar.a
         sig[i] = ar.sigma
-    return taps, sig
+        th[i] = ar.theta
+    return taps, sig, th
 
 
-def _whiten(r, taps, sig):
+def _whiten(r, taps, sig, th):
+    """IMA stage ``(1 - L)/(1 - th L)`` (scan) then the AR FIR, per axis (see whiten.py)."""
     n = r.shape[0]
-    cols = [jnp.convolve(r[:, i], taps[i], mode="full")[:n] / sig[i] for i in range(3)]
+    d = jnp.diff(r, axis=0, prepend=r[:1])
+
+    def step(carry, dt_):
+        y = dt_ + th * carry
+        return y, y
+
+    _, v = jax.lax.scan(step, jnp.zeros(3, r.dtype), d)
+    v = jnp.where(th[None, :] < 1.0, v, r)
+    cols = [jnp.convolve(v[:, i], taps[i], mode="full")[:n] / sig[i] for i in range(3)]
     return jnp.stack(cols, axis=1)
 
 
 @partial(jax.jit, static_argnames=("kind", "sensor", "max_steps"))
-def _refit(kind, sensor, phi0, mask, inp, y, fit_w, row_w, taps, sig, max_steps=4):
+def _refit(kind, sensor, phi0, mask, inp, y, fill_idx, row_w, taps, sig, th, max_steps=4):
     nb = E.N_BASE[kind]
 
     def unpack(phi):
@@ -60,8 +71,8 @@ def _refit(kind, sensor, phi0, mask, inp, y, fit_w, row_w, taps, sig, max_steps=
 
     def resid(phi, _):
         beta, theta = unpack(phi)
-        r = (y - E.model_output(kind, sensor, beta, theta, inp)) * fit_w[:, None]
-        rw = _whiten(r, taps, sig) * row_w
+        r = (y - E.model_output(kind, sensor, beta, theta, inp))[fill_idx]  # hold values over invalid rows
+        rw = _whiten(r, taps, sig, th) * row_w
         pen = 1e3 * (1.0 - mask) * phi[nb:]
         return jnp.concatenate([rw.reshape(-1), pen])
 
@@ -76,16 +87,15 @@ def _refit(kind, sensor, phi0, mask, inp, y, fit_w, row_w, taps, sig, max_steps=
 def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs, y: np.ndarray, rows: np.ndarray, ars: list[ARModel]) -> RefitResult:
     """Fit baseline + effects ``names`` jointly on ``rows`` (bool (N,)) from ``(beta0, theta0)``."""
     mask = E.effect_mask(sensor, names)
-    taps, sig = _filters(ars)
-    p = max(ar.order for ar in ars)
-    row_w = (rows & row_ok(rows, p)).astype(np.float64)[:, None] * np.ones((1, 3))
+    taps, sig, th = _filters(ars)
+    row_w = np.stack([gap_ok(rows, ar.memory) for ar in ars], 1).astype(np.float64)
     nb = E.N_BASE[kind]
     with jax.enable_x64(True):
         jinp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in inp])
         phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
         phi, jac, rr, n_data = _refit(
             kind, sensor, phi0, jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64),
-            jnp.asarray(rows, jnp.float64), jnp.asarray(row_w), jnp.asarray(taps), jnp.asarray(sig),
+            jnp.asarray(fill_index(rows)), jnp.asarray(row_w), jnp.asarray(taps), jnp.asarray(sig), jnp.asarray(th),
         )
         phi = np.asarray(phi)
         jac = np.asarray(jac)

@@ -70,7 +70,7 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
         rep["warnings"] += r.warnings
         inp = sd.inp
         rep["sensors"][s] = {
-            "noise": {"ar_order": r.ar_orders, "innovation_sd": r.ar_sigma, "whitened_s2_final": r.final_all.s2},
+            "noise": {"ar_order": r.ar_orders, "ima_theta": r.ar_theta, "innovation_sd": r.ar_sigma, "whitened_s2_final": r.final_all.s2},
             "baseline_params": np.asarray(r.base_all.beta).tolist(),
             "mds": r.mds,
             "mds_units": {n: E.UNITS.get((n, s)) for n in r.mds},

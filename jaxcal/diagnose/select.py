@@ -34,7 +34,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.whiten import ARModel, apply_filter, fit_ar, row_ok
+from jaxcal.diagnose.whiten import ARModel, apply_filter, fill_index, fit_ar, gap_ok, row_ok
 
 
 class SensorData(NamedTuple):
@@ -147,12 +147,13 @@ def build_system(x: np.ndarray, z: np.ndarray, ars: list[ARModel], fit_rows: np.
     nb = int(block.max()) + 1
     G, g, zz = np.zeros((nb, q, q)), np.zeros((nb, q)), np.zeros(nb)
     Gu, gu, zzu, nu = np.zeros((nb, q, q)), np.zeros((nb, q)), np.zeros(nb), np.zeros(nb)
+    fi = fill_index(fit_rows)
     for i in range(3):
         xi = np.where(fit_rows[:, None], x[:, i, :], 0.0)
         zi = np.where(fit_rows, z[:, i], 0.0)
-        xw = apply_filter(xi, ars[i])
-        zw = apply_filter(zi, ars[i])
-        ok = fit_rows & row_ok(fit_rows, ars[i].order)
+        xw = apply_filter(x[fi, i, :], ars[i])
+        zw = apply_filter(z[fi, i], ars[i])
+        ok = gap_ok(fit_rows, ars[i].memory)
         for k in range(nb):
             inb = block == k
             rows = ok & row_ok(inb, ars[i].order)
@@ -170,11 +171,18 @@ def build_system(x: np.ndarray, z: np.ndarray, ars: list[ARModel], fit_rows: np.
 
 
 def _solve(G: np.ndarray, g: np.ndarray, cols: list[int]) -> np.ndarray:
+    """Least squares from normal equations on ``cols``; columns the whitening annihilated (e.g.
+    the bias under a random-walk noise model) get 0 and are left to the caller."""
     a = G[np.ix_(cols, cols)]
-    scale = np.sqrt(np.clip(np.diag(a), 1e-300, None))
-    an = a / scale[:, None] / scale[None, :]
-    th = np.linalg.lstsq(an + 1e-12 * np.eye(len(cols)), g[cols] / scale, rcond=None)[0]
-    return th / scale
+    d = np.diag(a)
+    keep = d > 1e-12 * max(float(d.max()), 1e-300)
+    th = np.zeros(len(cols))
+    if keep.any():
+        ak = a[np.ix_(keep, keep)]
+        scale = np.sqrt(np.diag(ak))
+        an = ak / scale[:, None] / scale[None, :]
+        th[keep] = np.linalg.lstsq(an + 1e-12 * np.eye(int(keep.sum())), g[cols][keep] / scale, rcond=None)[0] / scale
+    return th
 
 
 def rss(G: np.ndarray, g: np.ndarray, zz: float, cols: list[int], th: np.ndarray) -> float:
@@ -369,10 +377,11 @@ def saturation_stat(sd: SensorData, pred: np.ndarray, resid: np.ndarray, ars: li
     pred_raw = pred * sd.spec_scale + sd.spec_bias
     delta = (pred_raw - np.clip(pred_raw, -limit, limit)) / sd.spec_scale
     tot = 0.0
+    fi = fill_index(rows)
     for i in range(3):
-        ok = rows & row_ok(rows, ars[i].order)
-        a = apply_filter(np.where(rows, resid[:, i], 0.0), ars[i])[ok]
-        b = apply_filter(np.where(rows, resid[:, i] + delta[:, i], 0.0), ars[i])[ok]
+        ok = gap_ok(rows, ars[i].memory)
+        a = apply_filter(resid[fi, i], ars[i])[ok]
+        b = apply_filter((resid[:, i] + delta[:, i])[fi], ars[i])[ok]
         tot += float(a @ a - b @ b)
     return tot
 
