@@ -20,7 +20,8 @@ Measurement model of one sequence (body rotating about the sensor's centre, CONV
 every accelerometer sample is gravity seen from the body, ``f_n = Phi_n(w_c)^T f_0`` with
 ``f_{n+1} = Exp(w_c,n dt)^T f_n`` (:func:`jaxcal.rotation.propagate_specific_force`) and an
 unknown start direction ``f_0`` on the unit sphere (a 2-dof nuisance). The residuals
-``r_n = a_c,n - f_n`` (all ``N`` samples, 3 components) contain the thesis's two constraints as
+``r_n = u_a,n - K_a^{-1} (f_n + e_a)`` (all ``N`` samples, 3 components; formed in measurement
+space, where the noise is) contain the thesis's two constraints as
 special cases: unit norm of the static ends (eq. 4.13, L2) and gravity carried by the calibrated
 gyroscope from the first to the last sample (eq. 4.11-4.12), and add every intermediate sample.
 No static-gyro residual is used: at the static ends the raw gyro reads ``round(b)`` exactly, so
@@ -166,17 +167,23 @@ def sequence_residuals(
     dt: float | Float[Array, ""],
     kind: str,
 ) -> Float[Array, "3N"]:
-    """Residuals ``a_c,n - Phi_n(w_c)^T f_0`` of one sequence (g), flattened; masked samples give 0.
+    """Measurement-space residuals ``u_a,n - K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one sequence
+    (spec-converted accelerometer units, ~g), flattened; masked samples give 0.
 
     ``f_0 = normalise(f0_ref + B delta)`` with ``B`` the tangent basis at ``f0_ref``. Masked
-    (padding) samples contribute no rotation and no residual.
+    (padding) samples contribute no rotation and no residual. The residual is formed where the
+    noise is (the raw reading), not on the calibrated value ``a_c - f``: the latter scales the
+    noise by ``K_a`` and is minimised by shrinking ``K_a`` (its global minimum is the trivial
+    ``K_a = 0``), which biases the estimate by ~``sigma^2`` and, with datasheet-level noise,
+    pulls the gyroscope scale off by several standard deviations.
     """
-    a_c = calibrate_acc(theta, u_acc, kind)
+    c = unpack(theta, kind)
     w_c = calibrate_gyr(theta, u_gyr, kind) * mask[:, None]
     f0 = f0_ref + tangent_basis(f0_ref) @ delta
     f0 = f0 / jnp.linalg.norm(f0)
     f = propagate_specific_force(f0, w_c[:-1], dt)
-    return ((a_c - f) * mask[:, None]).reshape(-1)
+    u_pred = jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
+    return ((u_acc - u_pred) * mask[:, None]).reshape(-1)
 
 
 class OnlineHP(NamedTuple):
@@ -193,9 +200,10 @@ class OnlineHP(NamedTuple):
             (``m = 0, 1, ...``) the information is also multiplied by ``((m + 1) / (m + 2))^p``,
             so that at the end sequence ``j`` weighs ``~ (j / M)^p``. Early sequences are
             linearised far from the truth (a single sequence leaves most directions to the prior,
-            and the MAP moves percent-level away); their quadratic approximations would otherwise
-            bias the final estimate by ~100 x its standard deviation. ``p = 1`` costs ~15 % in
-            standard deviation against uniform weights. ``0`` disables it.
+            and the MAP moves percent-level away); down-weighting their quadratic approximations
+            removes the bias they leave. With uniform weights (``p = 0``) the estimator equals the
+            batch maximum-likelihood one when noise dominates; ``p = 1`` costs ~15 % in standard
+            deviation there. ``0`` disables it.
         prior_scale, prior_cross, prior_acc_bias, prior_gyr_bias: std of the initial prior around
             the spec values (relative, relative, g, rad/s).
     """
@@ -243,15 +251,25 @@ def init_state(kind: str, hp: OnlineHP, dtype: Any = None) -> OnlineState:
 
 
 def predict(state: OnlineState, hp: OnlineHP, kind: str) -> OnlineState:
-    """Forgetting and process noise on the data information: ``Lambda <- (I + lambda Lambda
-    Q)^{-1} lambda Lambda`` with ``lambda = forgetting * ((m + 1) / (m + 2))^ramp_power`` before
-    the ``m``-th update (``Q = 0``, ``lambda = 1`` is exactly the identity)."""
+    """Forgetting and process noise on the *data* information (the datasheet prior is kept).
+
+    With ``lambda = forgetting * ((m + 1) / (m + 2))^ramp_power`` before the ``m``-th update and
+    ``A = (I + lambda Lambda Q)^{-1} lambda``: ``Lambda <- A Lambda``, and the data information
+    vector ``Lambda theta_data = (Lambda + Lambda_0) theta`` becomes ``A (Lambda + Lambda_0)
+    theta``, so the predicted estimate is ``(A Lambda + Lambda_0)^{-1} A (Lambda + Lambda_0)
+    theta``. ``lambda = 1``, ``Q = 0`` is exactly the identity.
+    """
+    info_0 = prior_info(kind, hp, state.info.dtype)
     q = per_param(kind, hp.q_scale, hp.q_cross, hp.q_acc_bias, hp.q_gyr_bias).astype(state.info.dtype) ** 2
     m = state.count.astype(state.info.dtype)
-    lam = hp.forgetting * ((m + 1.0) / (m + 2.0)) ** hp.ramp_power * state.info
-    eye = jnp.eye(lam.shape[0], dtype=lam.dtype)
-    info = jnp.linalg.solve(eye + lam * q[None, :], lam)
-    return OnlineState(state.theta, 0.5 * (info + info.T), state.count)
+    lam = hp.forgetting * ((m + 1.0) / (m + 2.0)) ** hp.ramp_power
+    eye = jnp.eye(state.info.shape[0], dtype=state.info.dtype)
+    a = lam * jnp.linalg.inv(eye + lam * state.info * q[None, :])
+    info = a @ state.info
+    info = 0.5 * (info + info.T)
+    eta = a @ ((state.info + info_0) @ state.theta)
+    theta = jnp.linalg.solve(info + info_0, eta)
+    return OnlineState(theta, info, state.count)
 
 
 def update(
@@ -263,8 +281,11 @@ def update(
     hp: OnlineHP,
     kind: str,
 ) -> OnlineState:
-    """Measurement update with one sequence: iterated GN on (theta, f_0) with the quadratic prior
-    ``|theta - theta_prev|^2_Lambda + |theta|^2_Lambda0``, then Schur-marginalise f_0."""
+    """Measurement update with one sequence: iterated GN on (theta, f_0) with the previous
+    posterior ``|theta - theta_prev|^2_(Lambda + Lambda_0)`` as prior, then Schur-marginalise
+    f_0; the stored information excludes ``Lambda_0`` again (it is never forgotten, and counted
+    once: centring ``Lambda`` at ``theta_prev`` *and* adding ``|theta|^2_Lambda0`` would count the
+    datasheet prior once per sequence and bias the estimate towards the spec values)."""
     p = state.theta.shape[0]
     theta_p, info_p = state.theta, state.info
     info_0 = prior_info(kind, hp, theta_p.dtype)
@@ -277,7 +298,7 @@ def update(
 
     def cost(z):
         d = z[:p] - theta_p
-        return w_obs * jnp.sum(res(z) ** 2) + d @ info_p @ d + z[:p] @ info_0 @ z[:p]
+        return w_obs * jnp.sum(res(z) ** 2) + d @ (info_p + info_0) @ d
 
     def normal_eq(z):
         r = res(z)
@@ -285,7 +306,7 @@ def update(
         h = w_obs * (j.T @ j)
         g = w_obs * (j.T @ r)
         h = h.at[:p, :p].add(info_p + info_0)
-        g = g.at[:p].add(info_p @ (z[:p] - theta_p) + info_0 @ z[:p])
+        g = g.at[:p].add((info_p + info_0) @ (z[:p] - theta_p))
         return h, g
 
     def gn_step(_, z):

@@ -1,0 +1,179 @@
+"""Tests of jaxcal.online (streaming self-calibration), jaxcal.fisher and jaxcal.simulate.drift.
+
+Truth comes from the simulators' hidden parameters, closed forms and invariants.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxcal import fisher
+from jaxcal.online import (
+    OnlineHP,
+    calibrate_acc,
+    calibrate_gyr,
+    fit_online_recording,
+    init_state,
+    n_params,
+    online_pass,
+    to_affine,
+    unpack,
+)
+from jaxcal.sensor import Diag, affine_inverse
+from jaxcal.simulate import Dataset2Config, dataset2
+from jaxcal.simulate.drift import DriftConfig, simulate_drift, temperature
+
+
+@pytest.fixture(scope="module")
+def small_d2():
+    # fresh seed, reduced dataset: 100 training sequences
+    return dataset2(jax.random.PRNGKey(31337), Dataset2Config(n_train=100, n_val=4))
+
+
+def _truth_theta(d):
+    a, g = d.acc_true_model, d.gyr_true_model
+    sa, sg = d.acc_spec.s, d.gyr_spec.s
+    return np.concatenate([sa / a.s - 1, a.b / a.s, sg / g.s - 1, g.b / g.s]).astype(np.float64)
+
+
+def test_recovers_true_parameters_near_quantisation_floor(small_d2):
+    d = small_d2
+    state, hist = online_pass(d.train.acc, d.train.gyr, d.dt, d.acc_spec, d.gyr_spec, OnlineHP(), "diag")
+    with jax.enable_x64(True):
+        am, gm = to_affine(state.theta, "diag", d.acc_spec, d.gyr_spec)
+        am = jax.tree.map(np.asarray, am)
+        gm = jax.tree.map(np.asarray, gm)
+    # Tolerances from the quantisation noise: one LSB of rounding spread over >= 1e4 samples
+    # leaves parameter errors far below 1 LSB; the spec starts 3 % / hundreds of LSB away.
+    np.testing.assert_allclose(np.diag(am.S), np.asarray(d.acc_true_model.s), rtol=2e-5)
+    np.testing.assert_allclose(np.diag(gm.S), np.asarray(d.gyr_true_model.s), rtol=1e-4)
+    np.testing.assert_allclose(am.b, np.asarray(d.acc_true_model.b), atol=0.5)
+    np.testing.assert_allclose(gm.b, np.asarray(d.gyr_true_model.b), atol=0.5)
+    # off-diagonals of a diag model are zero by construction; test error near the floor
+    e_acc = np.mean(np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1))
+    e_gyr = np.mean(np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1))
+    a, g = d.acc_true_model, d.gyr_true_model
+    f_acc = np.mean(np.linalg.norm((np.asarray(d.test_acc.raw) - a.b) / a.s - np.asarray(d.test_acc.true), axis=-1))
+    f_gyr = np.mean(np.linalg.norm((np.asarray(d.test_gyr.raw) - g.b) / g.s - np.asarray(d.test_gyr.true), axis=-1))
+    assert e_acc < 1.5 * f_acc and e_gyr < 1.5 * f_gyr
+    # and far better than the starting point (spec values)
+    e_spec = np.mean(np.linalg.norm(np.asarray(d.test_acc.raw) / d.acc_spec.s - np.asarray(d.test_acc.true), axis=-1))
+    assert e_acc < e_spec / 100
+
+
+def test_state_is_fixed_size():
+    d_small = dataset2(jax.random.PRNGKey(1), Dataset2Config(n_train=3, n_val=1))
+    d_big = dataset2(jax.random.PRNGKey(1), Dataset2Config(n_train=9, n_val=1))
+    for kind in ("diag", "affine"):
+        s3, h3 = online_pass(d_small.train.acc, d_small.train.gyr, d_small.dt, d_small.acc_spec, d_small.gyr_spec, OnlineHP(), kind)
+        s9, h9 = online_pass(d_big.train.acc, d_big.train.gyr, d_big.dt, d_big.acc_spec, d_big.gyr_spec, OnlineHP(), kind)
+        shapes3 = jax.tree.map(lambda x: x.shape, s3)
+        assert shapes3 == jax.tree.map(lambda x: x.shape, s9)
+        assert shapes3.theta == (n_params(kind),) and shapes3.info == (n_params(kind),) * 2
+        assert int(s9.count) == 9 and h9.shape == (9, n_params(kind))
+
+
+def test_unpack_affine_gauge_and_to_affine_roundtrip():
+    with jax.enable_x64(True):
+        theta = jax.random.normal(jax.random.PRNGKey(2), (21,), jnp.float64) * 0.01
+        c = unpack(theta, "affine")
+        assert np.allclose(np.tril(np.asarray(c.K_a), -1), 0.0)  # upper-triangular gauge fix
+        spec = Diag(jnp.array([16000.0, 16500.0, 16300.0]), jnp.array([10.0, -20.0, 5.0]))
+        gspec = Diag(jnp.full(3, 7500.0), jnp.zeros(3))
+        am, gm = to_affine(theta, "affine", spec, gspec)
+        y = jax.random.normal(jax.random.PRNGKey(3), (5, 3), jnp.float64) * 1e4
+        direct = calibrate_acc(theta, (y - spec.b) / spec.s, "affine")
+        np.testing.assert_allclose(affine_inverse(am, y), direct, rtol=1e-10, atol=1e-12)
+        direct_g = calibrate_gyr(theta, (y - gspec.b) / gspec.s, "affine")
+        np.testing.assert_allclose(affine_inverse(gm, y), direct_g, rtol=1e-10, atol=1e-12)
+
+
+def test_fit_online_recording_flat_arrays(small_d2):
+    d = small_d2
+    m, n = 60, d.train.acc.shape[1]
+    acc = np.asarray(d.train.acc[:m]).reshape(-1, 3)
+    gyr = np.asarray(d.train.gyr[:m]).reshape(-1, 3)
+    seq = np.repeat(np.arange(m), n)
+    t = np.arange(m * n) * d.dt
+    am, gm = fit_online_recording(acc, gyr, seq, t, d.acc_spec, d.gyr_spec, OnlineHP(), kind="affine")
+    e = np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
+    eg = np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
+    assert e < 1e-4 and eg < 2e-4  # g, rad/s: ~3 x the quantisation floor with 60 sequences
+
+
+def test_drift_truth_follows_temperature_model():
+    cfg = DriftConfig(n_seq=50, duration_s=3600.0, acc_noise_density=0.0, gyr_noise_density=0.0)
+    dd = simulate_drift(jax.random.PRNGKey(4), cfg)
+    tr = dd.truth
+    t = np.asarray(tr.t_start)
+    temp = np.asarray(tr.temp)
+    np.testing.assert_allclose(temp, 25.0 + 15.0 * (1 - np.exp(-t / 900.0)), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(temperature(jnp.asarray(1e9), cfg)), 40.0, rtol=1e-6)
+    dT = (temp - 25.0)[:, None]
+    s = np.asarray(tr.acc_model0.s) * (1 + np.asarray(tr.acc_scale_tc) * dT)
+    b = np.asarray(tr.acc_model0.b) + s * (np.asarray(tr.acc_bias_tc) * dT)
+    np.testing.assert_allclose(np.asarray(tr.acc_model.s), s, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(tr.acc_model.b), b, rtol=1e-5, atol=1e-3)
+    # tempco magnitudes in [0.5, 1] x configured
+    assert np.all((np.abs(tr.gyr_bias_tc) >= 0.5 * cfg.gyr_bias_tc - 1e-12) & (np.abs(tr.gyr_bias_tc) <= cfg.gyr_bias_tc + 1e-12))
+    # with zero noise the raw output is exactly round(s x + b) with the per-sequence truth
+    acc = np.asarray(dd.seqs.acc)
+    pred = np.round(np.asarray(tr.acc_model.s)[:, None] * np.asarray(dd.seqs.acc_true) + np.asarray(tr.acc_model.b)[:, None])
+    assert np.mean(acc == pred) > 0.999  # float32 ties aside
+
+
+def test_drift_noise_level():
+    cfg = DriftConfig(n_seq=20, temp_rise=0.0)
+    dd = simulate_drift(jax.random.PRNGKey(5), cfg)
+    s = np.asarray(dd.truth.acc_model.s)[:, None]
+    x = (np.asarray(dd.seqs.acc) - np.asarray(dd.truth.acc_model.b)[:, None]) / s - np.asarray(dd.seqs.acc_true)
+    expected = cfg.acc_noise_density * math.sqrt(cfg.motion.fs)
+    assert abs(np.std(x) / expected - 1) < 0.05
+
+
+def test_fisher_linear_toy_equals_closed_form():
+    with jax.enable_x64(True):
+        a = jax.random.normal(jax.random.PRNGKey(6), (40, 3), jnp.float64)
+        sigma = 0.3
+        model = lambda p: a @ p  # noqa: E731
+        j = jax.jacfwd(model)(jnp.zeros(3, jnp.float64))
+        np.testing.assert_allclose(fisher.gaussian_fisher(j, sigma=sigma), a.T @ a / sigma**2, rtol=1e-12)
+        cov = jnp.diag(jnp.linspace(0.1, 1.0, 40))
+        np.testing.assert_allclose(fisher.gaussian_fisher(j, cov), a.T @ jnp.linalg.inv(cov) @ a, rtol=1e-10)
+        # Schur complement = inverse of the (theta, theta) block of the full inverse
+        f = fisher.gaussian_fisher(j, sigma=sigma)
+        np.testing.assert_allclose(fisher.schur_marginal(f, 2), jnp.linalg.inv(jnp.linalg.inv(f)[:2, :2]), rtol=1e-10)
+
+
+def test_expected_error_closed_form():
+    # isotropic 3-D Gaussian: E|e| = sigma * 2 sqrt(2 / pi)
+    with jax.enable_x64(True):
+        sigma = 0.2
+        cov = sigma**2 * jnp.eye(3, dtype=jnp.float64)
+        e = fisher.expected_error(jax.random.PRNGKey(7), cov, lambda th: th[None, :], jnp.zeros(3, jnp.float64), n_draws=40000)
+        assert abs(float(e) / (sigma * 2 * math.sqrt(2 / math.pi)) - 1) < 0.01
+
+
+def test_protocol_crb_consistent_with_filter_scatter():
+    """The filter's parameter scatter over seeds is of the order of the Cramer-Rao bound."""
+    cfg = DriftConfig(n_seq=40, duration_s=40.0, temp_rise=0.0, gyr_noise_density=0.0)
+    errs = []
+    with jax.enable_x64(True):
+        for seed in range(3):
+            dd = simulate_drift(jax.random.PRNGKey(100 + seed), cfg)
+            sig = cfg.acc_noise_density * math.sqrt(cfg.motion.fs)
+            st, _ = online_pass(dd.seqs.acc, dd.seqs.gyr, dd.dt, dd.acc_spec, dd.gyr_spec, OnlineHP(sigma_acc=sig), "diag")
+            a0, g0 = dd.truth.acc_model0, dd.truth.gyr_model0
+            sa, sg = dd.acc_spec.s, dd.gyr_spec.s
+            th = jnp.concatenate([sa / a0.s - 1, a0.b / a0.s, sg / g0.s - 1, g0.b / g0.s]).astype(jnp.float64)
+            ug = (jnp.asarray(dd.seqs.gyr_true, jnp.float64) * g0.s + g0.b) / sg
+            f = fisher.protocol_fisher(th, jnp.asarray(dd.seqs.acc_true[:, 0], jnp.float64), ug, dd.dt, sig, 0.0, "diag")
+            sd = np.sqrt(np.diag(np.linalg.inv(np.asarray(f))))
+            errs.append(np.asarray(st.theta - th) / sd)
+    z = np.concatenate(errs)
+    assert np.sqrt(np.mean(z**2)) < 3.0  # normalised errors: ~1 for an efficient estimator
