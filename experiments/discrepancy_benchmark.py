@@ -46,7 +46,7 @@ def _inject(rng: np.random.Generator, rep0: dict, rec0: dict, sensor: str, name:
     if name == "saturation":
         peak = float(np.max(np.abs(rec0[sensor])))
         lim = float(np.floor(peak - m * md["depth_lsb"]))
-        return {}, {sensor: lim}, {"limit": lim}
+        return {}, {sensor: lim}, np.array([lim])
     F = np.asarray(md["fisher"])
     comp = np.asarray(md["components"])
     v = rng.standard_normal(len(comp)) * comp
