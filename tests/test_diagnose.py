@@ -154,7 +154,7 @@ def test_large_time_offset_found_by_coarse_search():
 
 def test_temperature_ramp_warns_confounding():
     cfg = CFG._replace(temp_profile="ramp")
-    rec, _ = simulate_recording(jax.random.PRNGKey(9), cfg, {("acc", "temperature_bias"): {"k": np.array([3e-4, 0, 0])}})
+    rec, _ = simulate_recording(jax.random.PRNGKey(9), cfg, {("acc", "temperature_bias"): {"k": np.array([1e-3, 0, 0])}})
     rep = diagnose_recording(rec)
     assert any("temperature_bias" in w and "bias_drift" in w and "confounded" in w for w in rep["warnings"])
     # the mismatch itself is found (under one of the two names)

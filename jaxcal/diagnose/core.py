@@ -260,11 +260,17 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) 
     sat_info = None
     prev = None
     nb = E.N_BASE[kind]
-    th0 = [1.0, 1.0, 1.0]
+    # random-walk level from the residual of the largest slow model (baseline + drift + temperature
+    # terms, plain least squares): a random walk is more than a line, so what is left still shows
+    # it, while a true drift/temperature effect no longer inflates it (restricted-likelihood idea)
+    slow = [c for c in ("bias_drift", "temperature_bias", "temperature_scale") if c in cands]
+    cs = list(range(nb)) + [j for c in slow for j in group_columns(kind, s, c)]
+    a_ = x[fit_rows][:, :, cs].reshape(-1, len(cs))
+    sol = np.linalg.lstsq(a_, z[fit_rows].reshape(-1), rcond=None)[0]
+    r_slow = z - x[:, :, cs] @ sol
+    th0 = [fit_ar(r_slow[:, i], fit_rows, cfg.max_ar_order).theta for i in range(3)]
     for it in range(cfg.max_passes):
         ars = [fit_ar(resid[:, i], fit_rows, cfg.max_ar_order, th0[i]) for i in range(3)]
-        if it == 0:
-            th0 = [a.theta for a in ars]
         if plateau is not None and it == 0:
             lim, pmask = plateau
             pred = sd.y - resid

@@ -110,8 +110,8 @@ def _ima_theta(x: np.ndarray) -> float:
     ms, av = np.array(ms, float), np.array(av)
     A = np.stack([1.0 / ms, ms / 3.0], 1) / av[:, None]
     r, q = np.linalg.lstsq(A, np.ones_like(av), rcond=None)[0]
-    if not (q > 0 and r > 0) or q * ms[-1] / 3.0 < r / ms[-1]:
-        return 1.0  # no random walk, or one that does not dominate even the longest averaging time
+    if not (q > 0 and r > 0) or q * ms[-1] / 3.0 < 0.25 * r / ms[-1]:
+        return 1.0  # no random walk, or one far below the white level even at the longest averaging time
     lam = q / r
     return float(np.clip(1.0 + lam / 2.0 - np.sqrt(lam + lam * lam / 4.0), 0.0, 0.99995))
 
