@@ -4,7 +4,7 @@ Regenerates Fig. 4.2-4.4 (dataset), 4.11-4.12 (after initial training), 4.13-4.1
 errors e_g, e_a at every iteration), 4.15-4.18 (after calibration) and Tables 4.1-4.2 over several
 seeds (one vmapped jit: each seed draws its own Dataset 2 and its own initial weights), beside the
 thesis's numbers, spec conversion and the quantisation floor. Writes ``results/online.md``,
-``results/online.json`` and ``results/figures/online_*.png``; if ``experiments.online_beyond``
+``results/online.json`` and ``results/figures/online_*.png`` (quick form: ``online_quick.*``); if ``experiments.online_beyond``
 exposes ``run(quick, fig_dir) -> str`` its markdown section is appended to ``results/online.md``.
 
 Usage: ``python -m experiments.online [--quick]``.
@@ -272,6 +272,7 @@ def _sweep(data, hp_base):
 
 def main(quick: bool) -> None:
     FIGS.mkdir(parents=True, exist_ok=True)
+    pre = "online_quick" if quick else "online"  # make run's quick form never overwrites the full results
     n_seeds = 2 if quick else 5
     config = Dataset2Config()  # 500 training sequences of 101 samples: the thesis's dataset, both forms
     hp_base = ot.default_hparams(jax.random.PRNGKey(0))
@@ -333,25 +334,25 @@ def main(quick: bool) -> None:
     take = lambda tree, i: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
     p_a, p_g = take(res.acc_params, 0), take(res.gyr_params, 0)
     p_a0, p_g0 = take(res.acc_params0, 0), take(res.gyr_params0, 0)
-    fig_dataset(d0, FIGS / "online_dataset.png")
-    fig_rates(d0, FIGS / "online_train_rates.png", FIGS / "online_test_rates.png")
+    fig_dataset(d0, FIGS / f"{pre}_dataset.png")
+    fig_rates(d0, FIGS / f"{pre}_train_rates.png", FIGS / f"{pre}_test_rates.png")
     fig_calibrated(
         d0,
         ot.calibrate_acc(p_a0, d0.test_acc.raw, d0.acc_spec),
         ot.calibrate_gyr(p_g0, d0.test_gyr.raw, d0.gyr_spec),
         ea0[0], eg0[0],
         f"After initial training, seed {seeds[0]} (Fig. 4.11, 4.12)",
-        FIGS / "online_after_initial.png",
+        FIGS / f"{pre}_after_initial.png",
         hist=False,
     )
-    fig_convergence(res.e_g, res.e_a, FIGS / "online_convergence.png")
+    fig_convergence(res.e_g, res.e_a, FIGS / f"{pre}_convergence.png")
     fig_calibrated(
         d0,
         ot.calibrate_acc(p_a, d0.test_acc.raw, d0.acc_spec),
         ot.calibrate_gyr(p_g, d0.test_gyr.raw, d0.gyr_spec),
         ea[0], eg[0],
         f"After online calibration, seed {seeds[0]} (Fig. 4.15-4.18)",
-        FIGS / "online_after_calibration.png",
+        FIGS / f"{pre}_after_calibration.png",
     )
 
     hp_json = {k: (None if k == "key" else float(v)) for k, v in hp_base._asdict().items()}
@@ -381,9 +382,9 @@ def main(quick: bool) -> None:
         },
     }
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "online.json").write_text(json.dumps(out, indent=1))
+    (RESULTS / f"{pre}.json").write_text(json.dumps(out, indent=1))
     md = _markdown(out)
-    (RESULTS / "online.md").write_text(md)
+    (RESULTS / f"{pre}.md").write_text(md)
 
     try:
         beyond = importlib.import_module("experiments.online_beyond")
@@ -391,7 +392,7 @@ def main(quick: bool) -> None:
         beyond = None
     if beyond is not None and hasattr(beyond, "run"):
         section = beyond.run(quick, FIGS)
-        (RESULTS / "online.md").write_text(md + "\n\n" + section.strip() + "\n")
+        (RESULTS / f"{pre}.md").write_text(md + "\n\n" + section.strip() + "\n")
 
 
 def _sweep_md(sweep, hp) -> list[str]:
@@ -421,6 +422,7 @@ def _markdown(o) -> str:
     hp = o["hparams"]
     tim = o["timing"]
     v = o["validation"]
+    pre = "online_quick" if o["quick"] else "online"
 
     def row(name, r):
         return f"| {name} | {_fmt(*r['mean'])} | {_fmt(*r['std'])} |"
@@ -539,16 +541,16 @@ def _markdown(o) -> str:
         "",
         "## Figures",
         "",
-        "- `figures/online_dataset.png` - Fig. 4.2: training accelerometer samples (static ends blue, rotating red).",
-        "- `figures/online_train_rates.png` - Fig. 4.3: training rate profiles (eq. 4.4).",
-        "- `figures/online_test_rates.png` - Fig. 4.4: gyroscope test rate (eq. 4.7).",
-        "- `figures/online_after_initial.png` - Fig. 4.11, 4.12: test sets after the initial training.",
-        "- `figures/online_convergence.png` - Fig. 4.13, 4.14: e_g and e_a at every iteration, every seed.",
-        "- `figures/online_after_calibration.png` - Fig. 4.15-4.18: test sets and error histograms after calibration.",
+        f"- `figures/{pre}_dataset.png` - Fig. 4.2: training accelerometer samples (static ends blue, rotating red).",
+        f"- `figures/{pre}_train_rates.png` - Fig. 4.3: training rate profiles (eq. 4.4).",
+        f"- `figures/{pre}_test_rates.png` - Fig. 4.4: gyroscope test rate (eq. 4.7).",
+        f"- `figures/{pre}_after_initial.png` - Fig. 4.11, 4.12: test sets after the initial training.",
+        f"- `figures/{pre}_convergence.png` - Fig. 4.13, 4.14: e_g and e_a at every iteration, every seed.",
+        f"- `figures/{pre}_after_calibration.png` - Fig. 4.15-4.18: test sets and error histograms after calibration.",
         "",
-        "![convergence](figures/online_convergence.png)",
+        f"![convergence](figures/{pre}_convergence.png)",
         "",
-        "![after calibration](figures/online_after_calibration.png)",
+        f"![after calibration](figures/{pre}_after_calibration.png)",
     ]
     return "\n".join(lines) + "\n"
 

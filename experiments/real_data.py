@@ -3,7 +3,7 @@
     python -m experiments.real_data [--quick]
 
 Reads only ``data/`` (the repository's compact copies). Writes ``results/real.md``,
-``results/real.json`` and ``results/figures/real_*.png``.
+``results/real.json`` and ``results/figures/real_*.png`` (quick form: ``real_quick.*``).
 
 Scores are held out (leave-poses-out): the accelerometer's mean ``| |f| - 1 g |`` over static
 poses that the fit did not use (mg), and the angle between the gyro-carried gravity direction of
@@ -328,11 +328,12 @@ def main(quick: bool) -> None:
     FIG.mkdir(parents=True, exist_ok=True)
     n_folds = 5 if quick else None
     res: dict = {"mode": "quick (5 interleaved folds)" if quick else "full (leave one pose out)"}
+    pre = "real_quick" if quick else "real"  # make run's quick form never overwrites the full results
     xs_rows, xs_info = xsens(n_folds)
-    fig_static(xs_info, FIG / "real_static_xsens.png")
-    fig_errors(xs_rows, "Xsens", FIG / "real_xsens_errors.png")
+    fig_static(xs_info, FIG / f"{pre}_static_xsens.png")
+    fig_errors(xs_rows, "Xsens", FIG / f"{pre}_xsens_errors.png")
     mpu_rows, mpu_info = mpu6050(n_folds)
-    fig_errors(mpu_rows, "MPU-6050", FIG / "real_mpu6050_errors.png")
+    fig_errors(mpu_rows, "MPU-6050", FIG / f"{pre}_mpu6050_errors.png")
     im_rows, im_info = imucal_session(n_folds)
     snap = imucal_snapshot()
     other = other_recordings()
@@ -345,7 +346,7 @@ def main(quick: bool) -> None:
     res["other"] = other
     res["seconds"] = round(time.time() - t_start, 1)
     pub = _public(res)
-    (RESULTS / "real.json").write_text(json.dumps(pub, indent=2))
+    (RESULTS / f"{pre}.json").write_text(json.dumps(pub, indent=2))
 
     fac = xs_rows["factory calibration, f = M^-1 K^-1 (raw - offset)"]
     best = xs_rows["jaxcal multipos 9-param"]
@@ -363,7 +364,7 @@ def main(quick: bool) -> None:
     md += ["", f"Goal (issue 5): jaxcal multipos held-out RMS {best['acc_rms_mg']:.3f} mg {verdict} the factory "
            f"calibration's {fac['acc_rms_mg']:.3f} mg RMS; gyro held-out median {best['gyr_median_deg']:.3f} deg vs factory "
            f"{fac['gyr_median_deg']:.3f} deg.", "",
-           "![static intervals](figures/real_static_xsens.png)", "", "![errors](figures/real_xsens_errors.png)", "",
+           f"![static intervals](figures/{pre}_static_xsens.png)", "", f"![errors](figures/{pre}_xsens_errors.png)", "",
            "## MPU-6050 (tomisuarez2/ImuCalibration)", "",
            f"{mpu_info['n_static_intervals']} static intervals (threshold k = {mpu_info['threshold_k']:g} chosen by imu_tk's "
            f"scan; the repository found 10); {mpu_info['saturated_transitions_excluded']} transitions with a saturated gyro "
@@ -379,7 +380,7 @@ def main(quick: bool) -> None:
            "|---|---|---|---|"]
     for name, e in mpu_info["independent_recordings"].items():
         md.append(f"| {name} | {e['static_test_norm_err_mg']:.2f} | {e['rot90x_gyro_rotation_deg']} | {e['rot90x_carried_gravity_err_deg']:.2f} |")
-    md += ["", "![errors](figures/real_mpu6050_errors.png)", "",
+    md += ["", f"![errors](figures/{pre}_mpu6050_errors.png)", "",
            "## imucal Ferraris example (continuous session, physical units)", "",
            f"{im_info['n_static_intervals']} static intervals. imucal: {im_info.get('imucal')}. imucal's rows are fitted on "
            "the labelled faces/turns of this same session, so for them the static poses are largely in-sample; the "
@@ -423,7 +424,7 @@ def main(quick: bool) -> None:
            "blind to a rotation of the frame; the gauge is pinned to a symmetric matrix): it differs in the frame it "
            "reports, which the gyro fit then absorbs.",
            "- jaxcal `online` is not run here (not available to this script yet).", ""]
-    (RESULTS / "real.md").write_text("\n".join(md))
+    (RESULTS / f"{pre}.md").write_text("\n".join(md))
     print("\n".join(md))
 
 
