@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import pathlib
 import time
 
@@ -427,7 +428,8 @@ def _markdown(res: dict, figs: list[str]) -> str:
     L.append("")
     L.append(f"Requirement <= 2 x floor (<= 0.06 mg, <= 0.13 mrad/s): diag {d0['acc_mg']:.4f} mg / {d0['gyr_mrads']:.4f} mrad/s "
              f"= {d0['acc_ratio_to_floor']:.3f} / {d0['gyr_ratio_to_floor']:.3f} x floor. Compile {d0['compile_s']:.1f} s (separate), "
-             f"one pass {d0['pass_s']:.2f} s for {d0['data_s']:.0f} s of data (real-time factor {d0['realtime_factor']:.0f}) on this machine's CPU. "
+             f"one pass {d0['pass_s']:.2f} s for {d0['data_s']:.0f} s of data (real-time factor {d0['realtime_factor']:.0f}) on this machine's CPU "
+             f"({res['cpu_count']} cores shared with other jobs, 1-min load average {res['loadavg_1min_at_start']:.1f} at the start: wall-clock timings scale with the load). "
              f"Parameter errors (diag, seed {r0['seed']}): acc scale {np.round(d0['param_err']['acc_scale_ppm'], 2).tolist()} ppm, "
              f"acc bias {np.round(d0['param_err']['acc_bias_ug'], 2).tolist()} ug, gyro scale {np.round(d0['param_err']['gyr_scale_ppm'], 2).tolist()} ppm, "
              f"gyro bias {np.round(d0['param_err']['gyr_bias_urads'], 2).tolist()} urad/s.\n")
@@ -506,7 +508,7 @@ def compute(quick: bool) -> dict:
     """All numbers of the section (float64 throughout)."""
     with jax.enable_x64(True):
         t0 = time.perf_counter()
-        res = {"quick": quick}
+        res = {"quick": quick, "loadavg_1min_at_start": os.getloadavg()[0], "cpu_count": os.cpu_count()}
         res["floor"] = part_floor(quick)
         res["noise"] = part_noise(quick)
         res["drift"] = part_drift(quick)

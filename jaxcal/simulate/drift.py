@@ -122,7 +122,17 @@ def measure(model: Diag, x: Float[Array, "L 3"], beta_noise: Float[Array, "L 3"]
     return jnp.round(model.s * x + model.b)
 
 
+@jax.jit(static_argnames=("config",))
+def _simulate(key: jax.Array, config: DriftConfig):
+    return _simulate_drift(key, config)
+
+
 def simulate_drift(key: jax.Array, config: DriftConfig = DriftConfig()) -> DriftData:
+    """Jitted :func:`_simulate_drift` (``config`` static); see there."""
+    return _simulate(key, config)
+
+
+def _simulate_drift(key: jax.Array, config: DriftConfig = DriftConfig()) -> DriftData:
     """Simulate ``config.n_seq`` sequences over ``config.duration_s`` with a drifting, noisy IMU.
 
     Args:
