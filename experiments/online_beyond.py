@@ -3,7 +3,8 @@ Cramer-Rao bound, and adaptivity under temperature drift.
 
 ``run(quick, fig_dir) -> str`` returns a markdown section (appended to ``results/online.md`` by
 ``experiments/online.py``); ``main(quick)`` writes ``results/online_beyond.json`` and the figures
-``results/figures/online_beyond_*.png`` and prints the section. Every number is produced here.
+``results/figures/online_beyond_*.png`` (quick form: ``online_beyond_quick*``) and prints the
+section. Every number is produced here.
 """
 
 from __future__ import annotations
@@ -340,6 +341,11 @@ def part_drift(quick: bool) -> dict:
 # ----------------------------------------------------------------------------------------------
 
 
+def _prefix(quick: bool) -> str:
+    """File prefix: the quick form never overwrites the full results (project convention)."""
+    return "online_beyond_quick" if quick else "online_beyond"
+
+
 def _figures(res: dict, fig_dir: pathlib.Path) -> list[str]:
     import matplotlib.pyplot as plt
 
@@ -365,7 +371,7 @@ def _figures(res: dict, fig_dir: pathlib.Path) -> list[str]:
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    p = fig_dir / "online_beyond_convergence.png"
+    p = fig_dir / f"{_prefix(res['quick'])}_convergence.png"
     fig.savefig(p, dpi=120)
     plt.close(fig)
     paths.append(p)
@@ -384,7 +390,7 @@ def _figures(res: dict, fig_dir: pathlib.Path) -> list[str]:
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    p = fig_dir / "online_beyond_drift.png"
+    p = fig_dir / f"{_prefix(res['quick'])}_drift.png"
     fig.savefig(p, dpi=120)
     plt.close(fig)
     paths.append(p)
@@ -495,12 +501,12 @@ def _markdown(res: dict, figs: list[str]) -> str:
 
 def run(quick: bool, fig_dir: pathlib.Path) -> str:
     """Run every part; write the figures into ``fig_dir`` and ``online_beyond.json`` beside it
-    (``fig_dir.parent``); return the markdown section."""
+    (``fig_dir.parent``; quick form: ``online_beyond_quick.*``); return the markdown section."""
     fig_dir = pathlib.Path(fig_dir)
     res = compute(quick)
     figs = _figures(res, fig_dir)
     fig_dir.parent.mkdir(parents=True, exist_ok=True)
-    (fig_dir.parent / "online_beyond.json").write_text(json.dumps(res, indent=1))
+    (fig_dir.parent / f"{_prefix(quick)}.json").write_text(json.dumps(res, indent=1))
     return _markdown(res, figs)
 
 
