@@ -105,6 +105,11 @@ def test_fit_online_recording_flat_arrays(small_d2):
     e = np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
     eg = np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
     assert e < 1e-4 and eg < 2e-4  # g, rad/s: ~3 x the quantisation floor with 60 sequences
+    # no datasheet values: initialised from the data (median norm, static-end medians)
+    am, gm = fit_online_recording(acc, gyr, seq, d.dt, None, None, OnlineHP(), kind="affine")
+    e = np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
+    eg = np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
+    assert e < 1e-4 and eg < 2e-4
 
 
 def test_drift_truth_follows_temperature_model():
