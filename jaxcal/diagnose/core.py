@@ -149,9 +149,16 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
     block = split_blocks(n, n_blocks)
     dT = np.zeros(n) if temp is None else temp - np.mean(temp[valid])
     tc = t - 0.5 * (t[0] + t[-1])
-    f = np.where(valid[:, None], f, 0.0)
-    w = np.where(valid[:, None], w, 0.0)
-    wdot = np.where(valid[:, None], wdot, 0.0)
+    # bridge invalid stretches by linear interpolation (not zeros): the band-limited time shift
+    # and its derivative would otherwise ring at every gap edge
+    idx = np.arange(n)
+
+    def bridge(a):
+        if valid.all() or not valid.any():
+            return np.nan_to_num(a)
+        return np.stack([np.interp(idx, idx[valid], a[valid, c]) for c in range(a.shape[1])], 1)
+
+    f, w, wdot = bridge(f), bridge(w), bridge(wdot)
     out: dict[str, SensorData] = {}
     for s in ("acc", "gyr"):
         if raw[s] is None:
@@ -260,17 +267,21 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) 
     sat_info = None
     prev = None
     nb = E.N_BASE[kind]
-    # random-walk level from the residual of the largest slow model (baseline + drift + temperature
-    # terms, plain least squares): a random walk is more than a line, so what is left still shows
-    # it, while a true drift/temperature effect no longer inflates it (restricted-likelihood idea)
-    slow = [c for c in ("bias_drift", "temperature_bias", "temperature_scale") if c in cands]
-    cs = list(range(nb)) + [j for c in slow for j in group_columns(kind, s, c)]
-    a_ = x[fit_rows][:, :, cs].reshape(-1, len(cs))
-    sol = np.linalg.lstsq(a_, z[fit_rows].reshape(-1), rcond=None)[0]
-    r_slow = z - x[:, :, cs] @ sol
-    th0 = [fit_ar(r_slow[:, i], fit_rows, cfg.max_ar_order).theta for i in range(3)]
+    # Noise model from the residual of the largest model (baseline + every candidate, plain least
+    # squares): a concealed effect left in the residual would otherwise be learnt as "coloured
+    # noise" by the AR/random-walk filter and whitened away (estimates shrink towards zero). A
+    # random walk is more than any candidate regressor, so what is left still shows it.
+    cs = list(range(nb)) + [j for c in cands for j in group_columns(kind, s, c)]
+
+    def noise_model(rows):
+        a_ = x[rows][:, :, cs].reshape(-1, len(cs))
+        sol = np.linalg.lstsq(a_, z[rows].reshape(-1), rcond=None)[0]
+        r_full = z - x[:, :, cs] @ sol
+        return [fit_ar(r_full[:, i], rows, cfg.max_ar_order) for i in range(3)]
+
+    ars_fixed = noise_model(fit_rows)
     for it in range(cfg.max_passes):
-        ars = [fit_ar(resid[:, i], fit_rows, cfg.max_ar_order, th0[i]) for i in range(3)]
+        ars = ars_fixed
         if plateau is not None and it == 0:
             lim, pmask = plateau
             pred = sd.y - resid
@@ -282,7 +293,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int) 
             sat_info = {"limit": lim, "n_clipped": int(pmask.sum()), "stat": st, "log10_p": lp, "selected": bool(sel)}
             if sel:
                 fit_rows = fit_rows & ~pmask
-                ars = [fit_ar(resid[:, i], fit_rows, cfg.max_ar_order, th0[i]) for i in range(3)]
+                ars = ars_fixed
         S = build_system(x, z, ars, fit_rows, sd.block)
         selected, decisions, th, cols = forward_select(S, kind, s, cands, pre, level)
         full = np.zeros(x.shape[2])
