@@ -555,7 +555,23 @@ def _markdown(o) -> str:
     return "\n".join(lines) + "\n"
 
 
+def report_only(quick: bool) -> None:
+    """Rewrite ``online[_quick].md`` from the JSON the runs wrote (``online[_quick].json`` and, if
+    present, ``online_beyond[_quick].json`` with its figures), without recomputing anything."""
+    pre = "online_quick" if quick else "online"
+    md = _markdown(json.loads((RESULTS / f"{pre}.json").read_text()))
+    beyond = importlib.import_module("experiments.online_beyond")
+    bj = RESULTS / f"{beyond._prefix(quick)}.json"
+    if bj.exists():
+        figs = [f"figures/{beyond._prefix(quick)}_{name}.png" for name in ("convergence", "drift")]
+        md += "\n\n" + beyond._markdown(json.loads(bj.read_text()), figs).strip() + "\n"
+    (RESULTS / f"{pre}.md").write_text(md)
+
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="2 seeds instead of 5")
-    main(parser.parse_args().quick)
+    parser.add_argument("--report-only", action="store_true",
+                        help="only rewrite the .md from the existing JSON results (no recomputation)")
+    a = parser.parse_args()
+    report_only(a.quick) if a.report_only else main(a.quick)
