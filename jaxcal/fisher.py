@@ -33,8 +33,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxcal.online import calibrate_gyr, tangent_basis, unpack
-from jaxcal.rotation import propagate_specific_force
+from jaxcal.online import predict_acc_readings
 
 
 def gaussian_fisher(
@@ -64,13 +63,8 @@ def predicted_acc(
     kind: str,
 ) -> Float[Array, "3N"]:
     """Noise-free spec-converted accelerometer readings of one sequence (flattened)."""
-    c = unpack(theta, kind)
-    w_c = calibrate_gyr(theta, u_gyr, kind)
-    g = f0 + tangent_basis(f0) @ delta
-    g = g / jnp.linalg.norm(g)
-    f = propagate_specific_force(g, w_c[:-1], dt)
-    u = jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
-    return u.reshape(-1)
+    mask = jnp.ones(u_gyr.shape[:1], dtype=u_gyr.dtype)
+    return predict_acc_readings(theta, delta, f0, u_gyr, mask, dt, kind).reshape(-1)
 
 
 def sequence_fisher(

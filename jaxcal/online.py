@@ -177,13 +177,27 @@ def sequence_residuals(
     ``K_a = 0``), which biases the estimate by ~``sigma^2`` and, with datasheet-level noise,
     pulls the gyroscope scale off by several standard deviations.
     """
+    u_pred = predict_acc_readings(theta, delta, f0_ref, u_gyr, mask, dt, kind)
+    return ((u_acc - u_pred) * mask[:, None]).reshape(-1)
+
+
+def predict_acc_readings(
+    theta: Float[Array, "P"],
+    delta: Float[Array, "2"],
+    f0_ref: Float[Array, "3"],
+    u_gyr: Float[Array, "N 3"],
+    mask: Float[Array, "N"],
+    dt: float | Float[Array, ""],
+    kind: str,
+) -> Float[Array, "N 3"]:
+    """Noise-free spec-converted accelerometer readings ``K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one
+    sequence: gravity from ``f_0 = normalise(f0_ref + B delta)`` carried by the calibrated gyro."""
     c = unpack(theta, kind)
     w_c = calibrate_gyr(theta, u_gyr, kind) * mask[:, None]
     f0 = f0_ref + tangent_basis(f0_ref) @ delta
     f0 = f0 / jnp.linalg.norm(f0)
     f = propagate_specific_force(f0, w_c[:-1], dt)
-    u_pred = jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
-    return ((u_acc - u_pred) * mask[:, None]).reshape(-1)
+    return jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
 
 
 class OnlineHP(NamedTuple):
