@@ -53,6 +53,7 @@ from jaxtyping import Array, Float, Int
 
 from jaxcal.nn import MLP, THESIS_LEAKY_SLOPE, THESIS_ONLINE_WIDTHS
 from jaxcal.normalise import Bounds, normalise
+from jaxcal.recording import sequence_bounds
 from jaxcal.rotation import propagate_specific_force, total_rotation
 from jaxcal.sensor import Affine, Diag
 
@@ -414,9 +415,7 @@ def online_pass(
 
 def _group_sequences(acc: np.ndarray, gyr: np.ndarray, seq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Split contiguous runs of equal ``seq`` into padded (M, Lmax, 3) arrays and a mask."""
-    seq = np.asarray(seq)
-    starts = np.flatnonzero(np.r_[True, seq[1:] != seq[:-1]])
-    ends = np.r_[starts[1:], len(seq)]
+    starts, ends = sequence_bounds(seq)
     lmax = int(np.max(ends - starts))
     m = len(starts)
     pa = np.zeros((m, lmax, 3))

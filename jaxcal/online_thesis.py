@@ -49,6 +49,7 @@ from jaxtyping import Array, Float, Int
 from jaxcal.metrics import euclidean_error, mse, sequence_acc_error, sequence_gyro_error
 from jaxcal.nn import MLP, THESIS_LEAKY_SLOPE, THESIS_ONLINE_WIDTHS, init_mlp
 from jaxcal.normalise import Bounds, bounds_from_spec, normalise
+from jaxcal.recording import sequence_bounds
 from jaxcal.rotation import compose, rotation_from_rate
 from jaxcal.sensor import Diag, spec_convert
 from jaxcal.simulate.dataset2 import ACC_RANGE_G, GYR_RANGE_RADS, Dataset2, Sequences
@@ -352,9 +353,7 @@ def split_sequences(
     seq = np.asarray(seq)
     if seq.ndim != 1 or x.ndim != 2 or x.shape[0] != seq.shape[0] or x.shape[1] != 3:
         raise ValueError(f"expected samples (L, 3) and seq (L,), got {x.shape} and {seq.shape}")
-    change = np.flatnonzero(seq[1:] != seq[:-1]) + 1
-    starts = np.concatenate([[0], change])
-    ends = np.concatenate([change, [seq.shape[0]]])
+    starts, ends = sequence_bounds(seq)
     ids = seq[starts]
     if len(np.unique(ids)) != len(ids):
         dup = ids[np.flatnonzero(np.bincount(np.unique(ids, return_inverse=True)[1]) > 1)[0]]

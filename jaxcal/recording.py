@@ -306,13 +306,18 @@ def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = Fal
             raise _fail(source, f"key '{name}': scale must be non-zero")
 
 
+def sequence_bounds(seq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(starts, ends)`` of the runs of equal consecutive ids in ``seq`` (ends exclusive)."""
+    seq = np.asarray(seq)
+    starts = np.flatnonzero(np.r_[True, seq[1:] != seq[:-1]])
+    return starts, np.r_[starts[1:], seq.shape[0]]
+
+
 def sequence_slices(rec: Recording) -> list[slice]:
     """Sample ranges of the contiguous sequences (one slice over everything if ``seq`` is absent)."""
     if rec.seq is None:
         return [slice(0, rec.n)]
-    s = np.asarray(rec.seq)
-    edges = np.concatenate([[0], np.flatnonzero(np.diff(s) != 0) + 1, [s.shape[0]]])
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return [slice(int(a), int(b)) for a, b in zip(*sequence_bounds(rec.seq))]
 
 
 # ----------------------------------------------------------------------------- npz
