@@ -40,7 +40,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
-from jaxcal.rotation import exp_so3
+from jaxcal.rotation import exp_so3, log_so3
 from jaxcal.sensor import Affine
 from jaxcal.static import detect_static
 
@@ -49,13 +49,15 @@ class MultiposConfig(NamedTuple):
     """Options. ``acc_model``: ``"9"`` or ``"12"``. ``gyro_bias``: ``"static"`` (mean over the
     static intervals in use) or ``"init"`` (the first interval only, as imu_tk). ``g_sensitivity``:
     also fit ``G_s``. ``midpoint``: midpoint rates (else the left sample, zero-order hold).
-    ``max_steps``: LM iteration cap."""
+    ``max_steps``: LM iteration cap. ``prior``: optional :class:`DatasheetPrior` (MAP on scales
+    and cross-axis terms; ``None``, the default, uses the data alone)."""
 
     acc_model: str = "9"
     gyro_bias: str = "static"
     g_sensitivity: bool = False
     midpoint: bool = True
     max_steps: int = 100
+    prior: Any = None
 
 
 class InverseAffine(NamedTuple):
@@ -103,37 +105,11 @@ class MultiposFit(NamedTuple):
 # ------------------------------------------------------------------------------ preparation
 
 
-def prepare(
-    t: np.ndarray,
-    acc: np.ndarray,
-    gyr: np.ndarray,
-    intervals: np.ndarray,
-    *,
-    gyr_limit: float | None = None,
-    midpoint: bool = True,
-    block: int = 8,
-) -> MultiposData:
-    """Pose means and padded transition segments (numpy; shapes depend on the data).
-
-    Args:
-        t: (N,) times (s), increasing, uneven allowed.
-        acc, gyr: (N, 3) outputs (LSB or physical).
-        intervals: (P, 2) static ``[start, stop)`` sample indices, in time order.
-        gyr_limit: if given, a transition with any ``|gyr| >= gyr_limit`` is marked unusable.
-        midpoint: rate point of step ``n`` is ``(y_n + y_{n+1}) / 2`` (else ``y_n``).
-        block: samples per integration block (1: exact per-sample product, first order).
-    """
-    t = np.asarray(t, np.float64)
-    acc = np.asarray(acc, np.float64)
-    gyr = np.asarray(gyr, np.float64)
-    iv = np.asarray(intervals, np.int64).reshape(-1, 2)
-    if len(iv) < 2:
-        raise ValueError("multipos needs at least two static intervals")
-    pose_acc = np.stack([acc[a:b].mean(0) for a, b in iv])
-    pose_gyr = np.stack([gyr[a:b].mean(0) for a, b in iv])
-    pose_n = (iv[:, 1] - iv[:, 0]).astype(np.float64)
-    # transition j: from the last sample of pose j to the first sample of pose j + 1
-    spans = [(iv[j, 1] - 1, iv[j + 1, 0]) for j in range(len(iv) - 1)]
+def _segment_sums(
+    t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, spans: list, midpoint: bool, block: int, gyr_limit: float | None
+) -> tuple[dict, np.ndarray, np.ndarray]:
+    """Block sums (see :class:`MultiposData`) of the integration spans ``[a, b]`` (sample ``a`` to
+    sample ``b``), padded to a common number of blocks; and the usable flag of each span."""
     J = len(spans)
     L = max(1, max(-(-(b - a) // block) for a, b in spans))
     out = {k: np.zeros((J, L, 3)) for k in ("sy", "c0", "p1", "p2", "sacc")}
@@ -160,8 +136,124 @@ def prepare(
         sdt[j, :nb] = dt.sum(1)
         if gyr_limit is not None and np.any(np.abs(gyr[a : b + 1]) >= gyr_limit):
             seg_ok[j] = False
+    return out, sdt, seg_ok
+
+
+def prepare(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    intervals: np.ndarray,
+    *,
+    gyr_limit: float | None = None,
+    midpoint: bool = True,
+    block: int = 8,
+    spans: np.ndarray | None = None,
+) -> MultiposData:
+    """Pose means and padded transition segments (numpy; shapes depend on the data).
+
+    Args:
+        t: (N,) times (s), increasing, uneven allowed.
+        acc, gyr: (N, 3) outputs (LSB or physical).
+        intervals: (P, 2) static ``[start, stop)`` sample indices, in time order.
+        gyr_limit: if given, a transition with any ``|gyr| >= gyr_limit`` is marked unusable.
+        midpoint: rate point of step ``n`` is ``(y_n + y_{n+1}) / 2`` (else ``y_n``).
+        block: samples per integration block (1: exact per-sample product, first order).
+        spans: optional (P - 1, 2) integration spans ``[a, b]`` of the transitions (default: from
+            the last sample of pose ``j`` to the first of pose ``j + 1``). Pass them when the pose
+            means use only part of a static hold (e.g. a time split), so that the transitions
+            start and end where the body really moved.
+    """
+    t = np.asarray(t, np.float64)
+    acc = np.asarray(acc, np.float64)
+    gyr = np.asarray(gyr, np.float64)
+    iv = np.asarray(intervals, np.int64).reshape(-1, 2)
+    if len(iv) < 2:
+        raise ValueError("multipos needs at least two static intervals")
+    pose_acc = np.stack([acc[a:b].mean(0) for a, b in iv])
+    pose_gyr = np.stack([gyr[a:b].mean(0) for a, b in iv])
+    pose_n = (iv[:, 1] - iv[:, 0]).astype(np.float64)
+    # transition j: from the last sample of pose j to the first sample of pose j + 1
+    if spans is None:
+        spans = [(iv[j, 1] - 1, iv[j + 1, 0]) for j in range(len(iv) - 1)]
+    else:
+        spans = [(int(a), int(b)) for a, b in np.asarray(spans).reshape(-1, 2)]
+        if len(spans) != len(iv) - 1:
+            raise ValueError(f"spans: need {len(iv) - 1} transitions, got {len(spans)}")
+    out, sdt, seg_ok = _segment_sums(t, acc, gyr, spans, midpoint, block, gyr_limit)
     return MultiposData(pose_acc, pose_gyr, pose_n, out["sy"], sdt, out["c0"], out["p1"], out["p2"],
                         out["sacc"], seg_ok)
+
+
+class KnownRotations(NamedTuple):
+    """Sections of known body rotation (e.g. a closed 360 deg turn on a turntable or against a
+    table edge): block sums as in :class:`MultiposData` for ``K`` sections, and the known rotation
+    ``R`` (K, 3, 3) of each, in the physical convention: ``R = R(t_0)^T R(t_1)`` (body frame, the
+    product ``prod Exp(w dt)`` the gyro must integrate to). A closed turn has ``R = I``."""
+
+    sy: Float[Array, "K L 3"]
+    sdt: Float[Array, "K L"]
+    c0: Float[Array, "K L 3"]
+    p1: Float[Array, "K L 3"]
+    p2: Float[Array, "K L 3"]
+    sacc: Float[Array, "K L 3"]
+    R: Float[Array, "K 3 3"]
+    seg_ok: Bool[Array, "K"]
+
+
+def prepare_known(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    spans: np.ndarray,
+    rotvecs: np.ndarray,
+    *,
+    gyr_limit: float | None = None,
+    midpoint: bool = True,
+    block: int = 8,
+) -> KnownRotations:
+    """Known-rotation sections (numpy). ``spans`` (K, 2): first and last sample ``[a, b]`` of each
+    section; ``rotvecs`` (K, 3): its known body rotation vector (rad; ``exp_so3`` of it is ``R``);
+    a closed turn of any whole number of revolutions is ``0`` (or ``2 pi`` times the axis)."""
+    t = np.asarray(t, np.float64)
+    acc = np.asarray(acc, np.float64)
+    gyr = np.asarray(gyr, np.float64)
+    sp = [(int(a), int(b)) for a, b in np.asarray(spans).reshape(-1, 2)]
+    out, sdt, ok = _segment_sums(t, acc, gyr, sp, midpoint, block, gyr_limit)
+    with jax.enable_x64(True):
+        r = np.asarray(exp_so3(jnp.asarray(np.asarray(rotvecs, np.float64).reshape(-1, 3))))
+    return KnownRotations(out["sy"], sdt, out["c0"], out["p1"], out["p2"], out["sacc"], r, ok)
+
+
+class DatasheetPrior(NamedTuple):
+    """Optional Gaussian prior (MAP) on the scales and cross-axis terms, from a datasheet.
+
+    With a prior the fits weigh the data residuals by their std (``acc_sigma``: one pose's
+    ``|f| - 1`` in g; ``gyr_sigma``: one component of a carried-gravity or known-rotation residual,
+    rad) and add rows ``(M_ii - 1) / scale_sigma`` and ``M_ij / cross_sigma`` (i != j) for
+    ``M = A / unit_per_lsb`` (relative to the nominal sensitivity). ``None`` for a sensor's
+    ``*_unit_per_lsb`` leaves that sensor without prior. Off by default everywhere: multipos needs
+    no datasheet; the prior only fills directions the poses do not observe.
+    """
+
+    acc_unit_per_lsb: float | None = None
+    gyr_unit_per_lsb: float | None = None
+    scale_sigma: float = 0.03
+    cross_sigma: float = 0.02
+    acc_sigma: float = 1e-3
+    gyr_sigma: float = 0.01
+
+
+#: InvenSense MPU-6050 (PS-MPU-6000A rev 3.4) at +-2 g / +-250 deg/s: 16384 LSB/g, 131 LSB/(deg/s),
+#: sensitivity tolerance +-3 %, cross-axis sensitivity +-2 % (both sensors).
+MPU6050_PRIOR = DatasheetPrior(acc_unit_per_lsb=1.0 / 16384.0, gyr_unit_per_lsb=float(np.pi / 180.0 / 131.0))
+
+
+def prior_rows(a: Float[Array, "3 3"], unit_per_lsb: Any, prior: DatasheetPrior) -> Float[Array, "9"]:
+    """Prior residuals of a calibration matrix ``A`` (unit/LSB): 3 scale rows, 6 cross-axis rows."""
+    m = a / unit_per_lsb
+    off = m[np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1])]
+    return jnp.concatenate([(jnp.diag(m) - 1.0) / prior.scale_sigma, off / prior.cross_sigma])
 
 
 # ------------------------------------------------------------------------------ accelerometer
@@ -181,14 +273,19 @@ def _acc_matrix(theta: Float[Array, "P"], model: str) -> tuple[Array, Array]:
 
 def acc_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "P+3"]:
     """``sqrt(w_i) (|A'(m_i - b')| - 1)`` per pose (normalised pose means ``m_i``), plus the
-    ``A - A^T`` gauge residual of the physical ``A = A' diag(1/s0)`` for the 12-parameter model (zeros for the 9-parameter one)."""
-    m, w, model, s0 = args
+    ``A - A^T`` gauge residual of the physical ``A = A' diag(1/s0)`` for the 12-parameter model (zeros for the 9-parameter one).
+    With a :class:`DatasheetPrior` (``args[4]``, optional) the pose rows are divided by its
+    ``acc_sigma`` and its 9 prior rows on the physical ``A`` are appended."""
+    m, w, model, s0 = args[:4]
+    prior = args[4] if len(args) > 4 else None
     a, b = _acc_matrix(theta, model)
     f = (m - b) @ a.T
     r = jnp.sqrt(w) * (jnp.linalg.norm(f, axis=-1) - 1.0)
     ap = a * (jnp.mean(s0) / s0)[None, :]  # the physical A, up to one common factor
     gauge = jnp.stack([ap[0, 1] - ap[1, 0], ap[0, 2] - ap[2, 0], ap[1, 2] - ap[2, 1]]) if model == "12" else jnp.zeros(3, m.dtype)
-    return jnp.concatenate([r, gauge])
+    if prior is None or prior.acc_unit_per_lsb is None:
+        return jnp.concatenate([r, gauge])
+    return jnp.concatenate([r / prior.acc_sigma, gauge, prior_rows(a / s0[None, :], prior.acc_unit_per_lsb, prior)])
 
 
 def ellipsoid_init(m: Float[Array, "P 3"], w: Float[Array, "P"]) -> tuple[Array, Array]:
@@ -214,9 +311,11 @@ def ellipsoid_init(m: Float[Array, "P 3"], w: Float[Array, "P"]) -> tuple[Array,
 
 
 def fit_acc(
-    pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], model: str = "9", max_steps: int = 100
+    pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], model: str = "9", max_steps: int = 100,
+    prior: DatasheetPrior | None = None,
 ) -> tuple[InverseAffine, Array]:
-    """Accelerometer multi-position fit (weights ``w`` per pose; 0 leaves a pose out)."""
+    """Accelerometer multi-position fit (weights ``w`` per pose; 0 leaves a pose out; optional
+    datasheet ``prior``, MAP). The returned cost leaves the prior rows out and is unweighted."""
     c0, s0 = ellipsoid_init(pose_acc, w)
     m = (pose_acc - c0) / s0
     if model == "9":
@@ -226,7 +325,7 @@ def fit_acc(
     else:
         raise ValueError(f"acc_model must be '9' or '12', got {model!r}")
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
-    sol = optx.least_squares(acc_residuals, solver, theta0, args=(m, w, model, s0), max_steps=max_steps, throw=False)
+    sol = optx.least_squares(acc_residuals, solver, theta0, args=(m, w, model, s0, prior), max_steps=max_steps, throw=False)
     a, b = _acc_matrix(sol.value, model)
     cost = jnp.sum(acc_residuals(sol.value, (m, w, model, s0)) ** 2)
     return InverseAffine(A=a / s0[None, :], b=c0 + s0 * b), cost
@@ -272,14 +371,35 @@ def _calibrated_acc_sums(acc: InverseAffine, d: MultiposData) -> Float[Array, "J
     return (d.sacc - acc.b * d.sdt[..., None]) @ acc.A.T
 
 
-def gyr_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "J*3"]:
-    """``sqrt(w_j) (R_j^T u_j - u_{j+1})`` for every transition ``j`` (physical convention)."""
-    d, bg, s0, gs, fsum, u, wj = args
+def known_rotation_residuals(
+    g: Float[Array, "3 3"], b: Float[Array, "3"], gsens: Float[Array, "3 3"], known: KnownRotations, fsum: Float[Array, "K L 3"]
+) -> Float[Array, "K 3"]:
+    """``log_so3(R_known^T R_int)`` per known-rotation section (rad, 3 components; physical
+    convention, ``R_int = prod Exp(w dt)`` of ``w = G (y - b) - G_s f``). Pure and vmappable."""
+    r = carry_rotation(block_rotvecs(g, b, gsens, known, fsum), jnp.ones_like(known.sdt))
+    return log_so3(jnp.swapaxes(known.R, -1, -2) @ r)
+
+
+def gyr_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "R"]:
+    """``sqrt(w_j) (R_j^T u_j - u_{j+1})`` for every transition ``j`` (physical convention).
+
+    Optional ``args[7:]``: ``(known, known_w, known_fsum, prior, unit_per_lsb)``: known-rotation
+    rows ``sqrt(w_k) log_so3(R_known^T R_int)`` (:func:`known_rotation_residuals`) and, with a
+    :class:`DatasheetPrior`, all data rows divided by its ``gyr_sigma`` plus its 9 prior rows on
+    ``G``."""
+    d, bg, s0, gs, fsum, u, wj = args[:7]
+    known, known_w, kfsum, prior = args[7:11] if len(args) > 7 else (None, None, None, None)
     g = s0 * (jnp.eye(3, dtype=theta.dtype) + theta[:9].reshape(3, 3))
     gsm = theta[9:18].reshape(3, 3) if gs else jnp.zeros((3, 3), theta.dtype)
     r = carry_rotation(block_rotvecs(g, bg, gsm, d, fsum), jnp.ones_like(d.sdt))
     pred = jnp.einsum("jba,jb->ja", r, u[:-1])  # R^T u_j
-    return (jnp.sqrt(wj)[:, None] * (pred - u[1:])).ravel()
+    rows = [(jnp.sqrt(wj)[:, None] * (pred - u[1:])).ravel()]
+    if known is not None:
+        kr = known_rotation_residuals(g, bg, gsm, known, kfsum)
+        rows.append((jnp.sqrt(known_w * known.seg_ok.astype(kr.dtype))[:, None] * kr).ravel())
+    if prior is not None and prior.gyr_unit_per_lsb is not None:
+        rows = [x / prior.gyr_sigma for x in rows] + [prior_rows(g, prior.gyr_unit_per_lsb, prior)]
+    return jnp.concatenate(rows)
 
 
 def gyro_angle_errors(
@@ -295,6 +415,14 @@ def gyro_angle_errors(
     return jnp.arccos(jnp.clip(c, -1.0, 1.0))
 
 
+def known_rotation_errors(
+    gyr: InverseAffine, gsens: Float[Array, "3 3"], acc: InverseAffine, known: KnownRotations
+) -> Float[Array, "K"]:
+    """Angle (rad) of ``R_known^T R_int`` per known-rotation section: the rotation error."""
+    kr = known_rotation_residuals(gyr.A, gyr.b, gsens, known, _calibrated_acc_sums(acc, known))
+    return jnp.linalg.norm(kr, axis=-1)
+
+
 def acc_norm_errors(acc: InverseAffine, pose_acc: Float[Array, "P 3"]) -> Float[Array, "P"]:
     """``| |f_i| - 1 |`` per pose (g) for calibrated pose means."""
     return jnp.abs(jnp.linalg.norm((pose_acc - acc.b) @ acc.A.T, axis=-1) - 1.0)
@@ -305,19 +433,25 @@ def fit_prepared(
     config: MultiposConfig = MultiposConfig(),
     acc_w: Float[Array, "P"] | None = None,
     gyr_w: Float[Array, "J"] | None = None,
+    known: KnownRotations | None = None,
+    known_w: Float[Array, "K"] | None = None,
 ) -> MultiposFit:
     """Accelerometer then gyroscope fit on prepared data (pure; vmappable over the weights).
 
     ``acc_w`` (per pose) and ``gyr_w`` (per transition) default to ones; a zero leaves that pose
     or transition out (leave-poses-out folds). Unusable transitions (``seg_ok``) are always left
-    out. Call under ``jax.enable_x64(True)`` for raw counts (as :func:`fit_multipos` does).
+    out. ``known`` (optional, :func:`prepare_known`): sections of known rotation, each adding the
+    3 rows ``log_so3(R_known^T R_int)`` to the gyro fit (weights ``known_w``, default ones); they
+    observe what gravity carrying cannot, e.g. the scale about a vertical turning axis.
+    ``config.prior``: optional datasheet prior (MAP). Call under ``jax.enable_x64(True)`` for raw
+    counts (as :func:`fit_multipos` does).
     """
     P = data.pose_acc.shape[0]
     dtype = data.pose_acc.dtype
     acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
     gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
     gyr_w = gyr_w * data.seg_ok.astype(dtype)
-    acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps)
+    acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior)
     f = (data.pose_acc - acc.b) @ acc.A.T
     u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
     # gyro bias from the static intervals (of the poses in use)
@@ -327,21 +461,27 @@ def fit_prepared(
         wn = acc_w * data.pose_n
         bg = jnp.sum(wn[:, None] * data.pose_gyr, 0) / jnp.sum(wn)
     fsum = _calibrated_acc_sums(acc, data)
+    if known is not None:
+        known_w = jnp.ones(known.R.shape[0], dtype) if known_w is None else known_w
+        kfsum = _calibrated_acc_sums(acc, known)
+        extra = (known, known_w, kfsum)
+    else:
+        extra = (None, None, None)
     # scale initialisation: grid over G = s I, both signs (4 per decade)
     grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
     zero = jnp.zeros(18 if config.g_sensitivity else 9, dtype)
 
     def grid_cost(s):
-        return jnp.sum(gyr_residuals(zero, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w)) ** 2)
+        return jnp.sum(gyr_residuals(zero, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w, *extra, None)) ** 2)
 
     costs = jnp.nan_to_num(jax.vmap(grid_cost)(grid), nan=jnp.inf)
     s0 = grid[jnp.argmin(costs)]
-    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w)
+    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w, *extra, config.prior)
     solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
     sol = optx.least_squares(gyr_residuals, solver, zero, args=args, max_steps=config.max_steps, throw=False)
     g = s0 * (jnp.eye(3, dtype=dtype) + sol.value[:9].reshape(3, 3))
     gs = sol.value[9:18].reshape(3, 3) if config.g_sensitivity else jnp.zeros((3, 3), dtype)
-    gyr_cost = jnp.sum(gyr_residuals(sol.value, args) ** 2)
+    gyr_cost = jnp.sum(gyr_residuals(sol.value, args[:10] + (None,)) ** 2)
     return MultiposFit(acc, InverseAffine(g, bg), gs, acc_cost, gyr_cost)
 
 

@@ -184,3 +184,104 @@ def test_fit_multipos_recording_contract(sim):
     np.testing.assert_allclose(gyr_model.b, B_GYR, atol=0.5)
     with pytest.raises(ValueError, match="gyr"):
         mp.fit_multipos_recording({"t": t, "acc": acc})
+
+
+# ------------------------------------------------------------------ known rotations and datasheet prior
+
+
+def _axis_turns(segments, s_true, b_g, fs=100.0, rest=1.0):
+    """Exact single-axis turns (rate ``angle/dur (1 - cos(2 pi t/dur))``, whose trapezoid sum is the
+    exact angle) between rests. ``segments``: ``(axis, angle_deg)`` body-axis turns of 2 s each.
+    Returns ``t, acc, gyr_raw, pose intervals, turn spans`` with ``gyr_raw = w / s_true + b_g``
+    (so the applied calibration is ``G = diag(s_true)``) and ``acc = f`` (A = I, b = 0)."""
+    dt, n_rest, n_turn = 1.0 / fs, int(rest * fs), int(2.0 * fs)
+    r = np.eye(3)
+    acc, rate, iv, spans = [], [], [], []
+
+    def add_rest():
+        start = len(acc)
+        for _ in range(n_rest):
+            acc.append(r.T @ np.array([0.0, 0.0, 1.0]))
+            rate.append(np.zeros(3))
+        iv.append((start, len(acc)))
+
+    add_rest()
+    for ax, ang in segments:
+        a, e = np.radians(ang), np.eye(3)[ax]
+        start = len(acc) - 1
+        r0 = r.copy()
+        for k in range(1, n_turn + 1):
+            tk = k * dt
+            th = a * (tk / 2.0 - np.sin(2 * np.pi * tk / 2.0) / (2 * np.pi))
+            r = r0 @ _exp_np(th * e)
+            acc.append(r.T @ np.array([0.0, 0.0, 1.0]))
+            rate.append(a / 2.0 * (1 - np.cos(2 * np.pi * tk / 2.0)) * e)
+        spans.append((start, len(acc) - 1 + 1))
+        add_rest()
+    t = np.arange(len(acc)) * dt
+    gyr = np.asarray(rate) / s_true + b_g
+    return t, np.asarray(acc), gyr, np.asarray(iv), np.asarray(spans)
+
+
+# turns about body x and y only (the z gyro never sees a rate) ...
+# (14 poses in diverse directions, so the 9-parameter accelerometer fit is determined)
+XY_TURNS = [(0, 90), (1, 90), (0, 45), (1, -135), (0, -90), (1, 60), (0, 180), (1, 45), (0, -60), (1, -90), (0, 120), (1, 150), (0, -45)]
+S_TRUE = np.array([1.05, 0.97, 1.08])
+B_G = np.array([0.01, -0.02, 0.005])
+
+
+def _fit(turns, known_idx=None, prior=None):
+    t, acc, gyr, iv, spans = _axis_turns(turns, S_TRUE, B_G)
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, mp.prepare(t, acc, gyr, iv))
+        known = None
+        if known_idx is not None:
+            known = jax.tree_util.tree_map(jnp.asarray, mp.prepare_known(t, acc, gyr, spans[known_idx], np.zeros((len(known_idx), 3))))
+        cfg = mp.MultiposConfig(prior=prior)
+        fit = jax.jit(mp.fit_prepared, static_argnums=1)(d, cfg, None, None, known)
+        return jax.tree_util.tree_map(np.asarray, fit), (d, known)
+
+
+def test_known_rotation_recovers_vertical_gyro_scale():
+    """A closed 360 deg turn about the vertical z axis (z up) carries gravity onto itself for every
+    z scale: gravity carrying alone leaves G_zz where the initialisation put it; the known-rotation
+    rows (log_so3(R_known^T R_int) = 0 for R_known = I) recover the simulated 1.08."""
+    turns = [(2, -360)] + XY_TURNS
+    fit0, _ = _fit(turns)
+    fit1, (d, known) = _fit(turns, known_idx=[0])
+    assert abs(fit1.gyr.A[2, 2] - S_TRUE[2]) < 1e-3
+    assert abs(fit0.gyr.A[2, 2] - S_TRUE[2]) > 0.02  # invisible without the constraint
+    np.testing.assert_allclose(np.diag(fit1.gyr.A)[:2], S_TRUE[:2], atol=2e-3)  # x, y from gravity carrying
+    with jax.enable_x64(True):
+        err = mp.known_rotation_errors(mp.InverseAffine(jnp.asarray(fit1.gyr.A), jnp.asarray(fit1.gyr.b)), jnp.zeros((3, 3)),
+                                       mp.InverseAffine(jnp.eye(3), jnp.zeros(3)), known)
+        err_true = mp.known_rotation_errors(mp.InverseAffine(jnp.diag(jnp.asarray(S_TRUE)), jnp.asarray(B_G)), jnp.zeros((3, 3)),
+                                            mp.InverseAffine(jnp.eye(3), jnp.zeros(3)), known)
+    assert float(err_true[0]) < 1e-6  # the residual is exactly zero at the truth (physical convention)
+    assert float(err[0]) < 1e-3
+
+
+def test_known_rotation_residual_sign_convention():
+    """A known +90 deg turn about x: the residual vanishes for R_known = Exp(+90 x) and not for
+    Exp(-90 x) (R_known = R(t0)^T R(t1), the body-frame product prod Exp(w dt))."""
+    t, acc, gyr, iv, spans = _axis_turns([(0, 90)], np.ones(3), np.zeros(3))
+    with jax.enable_x64(True):
+        cal = mp.InverseAffine(jnp.eye(3), jnp.zeros(3))
+        for sign, small in ((1.0, True), (-1.0, False)):
+            k = jax.tree_util.tree_map(jnp.asarray, mp.prepare_known(t, acc, gyr, spans, [[sign * np.pi / 2, 0, 0]]))
+            e = float(mp.known_rotation_errors(cal, jnp.zeros((3, 3)), cal, k)[0])
+            assert (e < 1e-6) if small else (abs(e - np.pi) < 1e-6)
+
+
+def test_prior_fills_unobserved_direction_only():
+    """Turns about x and y only: the z gyro column is unobserved. The datasheet prior (nominal
+    1 unit/LSB, 3 % / 2 %) pulls G_zz to the prior mean 1 (truth 1.08) and the cross terms of
+    that column to 0, while G_xx stays at its data-determined 1.05 (outside the prior's 3 %)."""
+    prior = mp.DatasheetPrior(acc_unit_per_lsb=None, gyr_unit_per_lsb=1.0)
+    fit, _ = _fit(XY_TURNS, prior=prior)
+    assert abs(fit.gyr.A[2, 2] - 1.0) < 2e-3
+    assert np.all(np.abs(fit.gyr.A[:2, 2]) < 2e-3)
+    assert abs(fit.gyr.A[0, 0] - S_TRUE[0]) < 5e-3
+    assert abs(fit.gyr.A[1, 1] - S_TRUE[1]) < 5e-3
+    fit0, _ = _fit(XY_TURNS)
+    assert abs(fit0.gyr.A[0, 0] - S_TRUE[0]) < 2e-3  # same observed value without the prior
