@@ -1,10 +1,30 @@
-"""Joint nonlinear refit of the baseline and the named effects (optimistix Gauss-Newton).
+"""Joint nonlinear refit of the baseline and the named effects (optimistix Levenberg-Marquardt).
 
 The residual is the per-axis AR-whitened, unit-variance output error of the full extended model
 (:func:`jaxcal.diagnose.effects.model_output`) on the chosen rows; effects not named are held at
 zero by a 0/1 mask (plus stiff penalty rows, so the normal equations stay well posed and one
-compiled function serves every subset). Standard errors come from the whitened Jacobian at the
-solution, ``cov = s^2 (J^T J)^-1`` with ``s^2 = RSS / (n - p)`` (1 if the AR noise model is right).
+compiled function serves every subset).
+
+Convergence: when a regressor is computed from a noisy reference (errors in variables, e.g. the
+time-offset regressor ``-d(reference)/dt`` of a twice-differentiated mocap position), the
+Gauss-Newton curvature ``J^T J`` overstates the true curvature of the objective (it counts the
+regressor's own noise), so each step covers only part of the way and Gauss-Newton converges
+linearly. The minimiser itself stays consistent (a band-limited shift does not change the
+whitened energy of the reference noise), so the solver runs to convergence (``max_steps``
+default 128) rather than a fixed few steps. Levenberg-Marquardt, not plain Gauss-Newton: under a
+random-walk noise model the whitening nearly annihilates the bias columns, the undamped normal
+equations are singular and a Gauss-Newton solve fails on its first step (it then returned the
+starting point unchanged).
+
+Standard errors, two of them, and the larger is reported per parameter:
+
+* model-based ``cov = s^2 (J^T J)^-1`` with ``s^2 = RSS / (n - p)`` (right when the AR noise
+  model is right and the regressors are exact);
+* block sandwich (cluster-robust over the cross-validation time blocks): ``H^-1 (K/(K-1)
+  sum_k g_k g_k^T) H^-1`` with ``g_k`` the gradient of ``RSS/2`` from block ``k`` alone and ``H``
+  the exact Hessian of ``RSS/2`` (autodiff), which does not count regressor noise as information.
+  It stays honest under errors in variables and residual colour the AR model missed; with only
+  ``K`` blocks it is itself uncertain (about ``K - 1`` degrees of freedom), hence the maximum.
 """
 
 from __future__ import annotations
@@ -24,8 +44,10 @@ MAX_TAPS = 65
 
 
 class RefitResult(NamedTuple):
-    """``beta`` baseline, ``theta`` effects (zeros where masked), ``se_theta``/``se_beta`` standard
-    errors, ``s2`` whitened residual variance, ``resid`` (N, 3) physical output error."""
+    """``beta`` baseline, ``theta`` effects (zeros where masked), ``se_beta``/``se_theta`` reported
+    standard errors (the larger of model-based and block sandwich), ``s2`` whitened residual
+    variance, ``resid`` (N, 3) physical output error; ``se_model_theta``/``se_block_theta`` the two
+    standard errors separately, ``n_steps`` solver steps taken (NaN / 0 where not refitted)."""
 
     beta: np.ndarray
     theta: np.ndarray
@@ -33,6 +55,9 @@ class RefitResult(NamedTuple):
     se_theta: np.ndarray
     s2: float
     resid: np.ndarray
+    se_model_theta: np.ndarray | None = None
+    se_block_theta: np.ndarray | None = None
+    n_steps: int = 0
 
 
 def _filters(ars: list[ARModel]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -63,29 +88,64 @@ def _whiten(r, taps, sig, th):
 
 
 @partial(jax.jit, static_argnames=("kind", "sensor", "max_steps"))
-def _refit(kind, sensor, phi0, mask, inp, y, fill_idx, row_w, taps, sig, th, max_steps=4):
+def _refit(kind, sensor, phi0, mask, inp, y, fill_idx, row_w, taps, sig, th, max_steps=128):
     nb = E.N_BASE[kind]
 
     def unpack(phi):
         return phi[:nb], phi[nb:] * mask
 
-    def resid(phi, _):
+    def white(phi):
         beta, theta = unpack(phi)
         r = (y - E.model_output(kind, sensor, beta, theta, inp))[fill_idx]  # hold values over invalid rows
-        rw = _whiten(r, taps, sig, th) * row_w
-        pen = 1e3 * (1.0 - mask) * phi[nb:]
-        return jnp.concatenate([rw.reshape(-1), pen])
+        return _whiten(r, taps, sig, th) * row_w
 
-    sol = optx.least_squares(resid, optx.GaussNewton(rtol=1e-6, atol=1e-9), phi0, max_steps=max_steps, throw=False)
+    def resid(phi, _):
+        pen = 1e3 * (1.0 - mask) * phi[nb:]
+        return jnp.concatenate([white(phi).reshape(-1), pen])
+
+    sol = optx.least_squares(resid, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-12), phi0, max_steps=max_steps, throw=False)
     phi = sol.value
     jac = jax.jacfwd(lambda p: resid(p, None))(phi)
+    hess = jax.hessian(lambda p: 0.5 * jnp.sum(resid(p, None) ** 2))(phi)
     rr = resid(phi, None)
     n_data = jnp.sum(row_w)
-    return phi, jac, rr, n_data
+    return phi, jac, hess, rr, n_data, sol.stats["num_steps"]
 
 
-def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs, y: np.ndarray, rows: np.ndarray, ars: list[ARModel]) -> RefitResult:
-    """Fit baseline + effects ``names`` jointly on ``rows`` (bool (N,)) from ``(beta0, theta0)``."""
+def _scaled_inv(a: np.ndarray) -> np.ndarray:
+    sc = np.sqrt(np.clip(np.abs(np.diag(a)), 1e-300, None))
+    return np.linalg.pinv(a / sc[:, None] / sc[None, :]) / sc[:, None] / sc[None, :]
+
+
+def block_sandwich_cov(jac: np.ndarray, rr: np.ndarray, hess: np.ndarray, row_block: np.ndarray) -> np.ndarray:
+    """Cluster-robust covariance ``H^-1 (K/(K-1) sum_k g_k g_k^T) H^-1`` (see module docstring).
+
+    Args:
+        jac: (M, P) Jacobian of the whitened residual rows.
+        rr: (M,) whitened residual at the solution.
+        hess: (P, P) Hessian of ``|r|^2 / 2`` (falls back to ``J^T J`` if not positive definite).
+        row_block: (M,) block id of each row (rows of one block are summed into one score).
+    """
+    kb = int(row_block.max()) + 1
+    g = np.stack([jac[row_block == k].T @ rr[row_block == k] for k in range(kb)])
+    g = g - g.mean(0)  # the blocks' scores sum to ~0 at the optimum; centring removes the rest
+    meat = g.T @ g * kb / max(kb - 1, 1)
+    h = hess
+    h = 0.5 * (h + h.T)
+    d = np.sqrt(np.clip(np.abs(np.diag(h)), 1e-300, None))
+    if not np.all(np.isfinite(h)) or np.linalg.eigvalsh(h / d[:, None] / d[None, :]).min() < -1e-9:
+        h = jac.T @ jac
+    hi = _scaled_inv(h)
+    return hi @ meat @ hi
+
+
+def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs, y: np.ndarray, rows: np.ndarray,
+          ars: list[ARModel], block: np.ndarray | None = None, max_steps: int = 128) -> RefitResult:
+    """Fit baseline + effects ``names`` jointly on ``rows`` (bool (N,)) from ``(beta0, theta0)``.
+
+    ``block`` (N,) int: time-block ids for the block-sandwich standard error (omitted: model-based
+    standard error only).
+    """
     mask = E.effect_mask(sensor, names)
     taps, sig, th = _filters(ars)
     row_w = np.stack([gap_ok(rows, ar.memory) for ar in ars], 1).astype(np.float64)
@@ -93,13 +153,12 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     with jax.enable_x64(True):
         jinp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in inp])
         phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
-        phi, jac, rr, n_data = _refit(
+        phi, jac, hess, rr, n_data, n_steps = _refit(
             kind, sensor, phi0, jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64),
             jnp.asarray(fill_index(rows)), jnp.asarray(row_w), jnp.asarray(taps), jnp.asarray(sig), jnp.asarray(th),
+            max_steps=max_steps,
         )
-        phi = np.asarray(phi)
-        jac = np.asarray(jac)
-        rr = np.asarray(rr)
+        phi, jac, hess, rr = (np.asarray(a) for a in (phi, jac, hess, rr))
         beta, theta = phi[:nb], phi[nb:] * mask
         resid = np.asarray(y - E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(theta), jinp))
     n3 = 3 * len(y)
@@ -107,9 +166,15 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     ja = jac[:n3][:, active]
     n_eff = float(n_data)
     s2 = float(rr[:n3] @ rr[:n3]) / max(n_eff - active.sum(), 1.0)
-    jtj = ja.T @ ja
-    sc = np.sqrt(np.clip(np.diag(jtj), 1e-300, None))
-    cov = np.linalg.pinv(jtj / sc[:, None] / sc[None, :]) / sc[:, None] / sc[None, :] * s2
-    se = np.zeros(len(phi))
-    se[active] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    return RefitResult(beta, theta, se[:nb], se[nb:], s2, resid)
+    cov = _scaled_inv(ja.T @ ja) * s2
+    se_m = np.zeros(len(phi))
+    se_m[active] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    se = se_m.copy()
+    se_b = None
+    if block is not None and int(np.max(block)) >= 2:
+        rb = np.repeat(np.asarray(block), 3)
+        cb = block_sandwich_cov(ja, rr[:n3], hess[np.ix_(active, active)], rb)
+        se_b = np.zeros(len(phi))
+        se_b[active] = np.sqrt(np.clip(np.diag(cb), 0.0, None))
+        se = np.maximum(se_m, se_b)
+    return RefitResult(beta, theta, se[:nb], se[nb:], s2, resid, se_m[nb:], None if se_b is None else se_b[nb:], int(n_steps))
