@@ -15,7 +15,7 @@ from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.kinematics import reference_from_pose
 from jaxcal.diagnose.simulate import RichConfig, simulate_recording
-from jaxcal.diagnose.whiten import apply_filter, fit_ar
+from jaxcal.diagnose.whiten import LAMBDAS, apply_filter, fit_ar, ll_innovations, reml_profile
 from jaxcal.rotation import exp_so3, quat_from_matrix
 
 N = 4000
@@ -84,6 +84,43 @@ def test_ar_fit_recovers_coefficient_and_whitens():
     w = apply_filter(e, ar)[100:]
     assert abs(np.corrcoef(w[1:], w[:-1])[0, 1]) < 0.03
     assert abs(np.std(w) - 1.0) < 0.03
+
+
+@pytest.mark.parametrize("lam", [0.0, 1e-9, 1e-5, 1e-2])
+def test_local_level_filter_matches_naive_kalman(lam):
+    # independent truth: the textbook scalar Kalman filter, diffuse start, one step at a time
+    x = np.random.default_rng(3).standard_normal((2500, 2))
+    m, P, ref = x[0].copy(), 1.0 + lam, np.zeros_like(x)
+    for t in range(1, len(x)):
+        F = P + 1.0
+        ref[t] = (x[t] - m) / np.sqrt(F)
+        m, P = m + P / F * (x[t] - m), P / F + lam
+    np.testing.assert_allclose(ll_innovations(x, lam), ref, atol=1e-10)
+
+
+def test_reml_random_walk_level_not_absorbed_by_a_drift_regressor():
+    # white noise + random walk (ratio 1e-4 per sample); the drift regressor t would absorb part
+    # of the walk in a residual-based estimate; REML keeps the level near the truth
+    rng = np.random.default_rng(5)
+    n, lam = 20000, 1e-4
+    e = rng.standard_normal(n) + np.cumsum(np.sqrt(lam) * rng.standard_normal(n))
+    X = np.stack([np.ones(n), np.linspace(-1, 1, n), np.sin(np.linspace(0, np.pi, n)) ** 2], 1)
+    prof = reml_profile(e, np.ones(n, bool), X)
+    est = LAMBDAS[int(np.argmax(prof))]
+    assert lam / 4 <= est <= lam * 4
+    # on white noise the profile prefers (essentially) no walk
+    prof0 = reml_profile(rng.standard_normal(n), np.ones(n, bool), X)
+    assert LAMBDAS[int(np.argmax(prof0))] <= 1e-6
+
+
+def test_random_walk_null_names_nothing():
+    # bias random walk in both sensors, nothing left out of the model: slow effects (drift,
+    # temperature) must not be named (the old residual-based noise model named drift here)
+    cfg = CFG._replace(acc_rw_g_per_sqrt_s=1e-4, gyr_rw_rads_per_sqrt_s=3e-5)
+    for seed in (10_000, 10_001):
+        rec, _ = simulate_recording(jax.random.PRNGKey(seed), cfg)
+        rep = diagnose_recording(rec)
+        assert rep["effects"] == [], [(e["sensor"], e["name"]) for e in rep["effects"]]
 
 
 def test_reference_from_pose_constant_turn():

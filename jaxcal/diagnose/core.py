@@ -38,7 +38,7 @@ from jaxcal.diagnose.select import (
     saturation_plateau,
     saturation_stat,
 )
-from jaxcal.diagnose.whiten import apply_filter, fill_index, fit_ar, gap_ok
+from jaxcal.diagnose.whiten import apply_filter, choose_lambda, fill_index, fit_ar, gap_ok, reml_profile
 
 # Motion/conditions that excite each effect (used in warnings).
 EXCITE = {
@@ -299,7 +299,9 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         a_ = x[rows][:, :, cs].reshape(-1, len(cs))
         sol = np.linalg.lstsq(a_, z[rows].reshape(-1), rcond=None)[0]
         r_full = z - x[:, :, cs] @ sol
-        return [fit_ar(r_full[:, i], rows, cfg.max_ar_order) for i in range(3)]
+        profs = [reml_profile(r_full[:, i], rows, X=x[:, i, cs]) for i in range(3)]
+        lams = choose_lambda(profs, pooled=cfg.rw_pooled, slack=cfg.rw_slack)
+        return [fit_ar(r_full[:, i], rows, cfg.max_ar_order, lam=lams[i]) for i in range(3)]
 
     ars_fixed = noise_model(fit_rows)
     for it in range(cfg.max_passes):

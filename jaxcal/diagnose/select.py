@@ -66,6 +66,8 @@ class SelectConfig(NamedTuple):
     max_ar_order: int = 64
     confound_threshold: float = 0.95
     max_passes: int = 3
+    rw_pooled: bool = True  # one random-walk level per sensor (axes share it)
+    rw_slack: float = 1.92  # upper end of the ~95 % profile interval of that level (conservative)
 
 
 # ----------------------------------------------------------------------------- linearisation

@@ -18,6 +18,7 @@ dropped (:func:`row_ok` with ``ARModel.memory``).
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -38,6 +39,7 @@ class ARModel(NamedTuple):
     order: int
     theta: float = 1.0
     memory: int = 0
+    lam: float = 0.0
 
 
 def _ima(x: np.ndarray, theta: float) -> np.ndarray:
@@ -94,50 +96,200 @@ def gap_ok(valid: np.ndarray, memory: int) -> np.ndarray:
     return valid & row_ok(inner, memory)
 
 
-def _ima_theta(x: np.ndarray) -> float:
-    """IMA(1,1) coefficient of the local-level model fitted to the Allan variance of ``x``."""
-    n = len(x)
-    if n < 200:
+LAMBDAS = (0.0,) + tuple(float(x) for x in 10.0 ** np.arange(-11.0, -1.99, 0.5))
+
+
+@lru_cache(maxsize=256)
+def local_level_gains(lam: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Kalman gains ``K`` (n,) and innovation sd factors ``sf`` (n,) of the local-level model
+    ``x_t = mu_t + e_t``, ``mu_t = mu_{t-1} + w_t`` (``var w / var e = lam``) with a diffuse
+    initial level, in units of the white sd. Sample 0 only initialises the level (``sf[0] = inf``).
+
+    ``lam = 0`` (no random walk) gives ``K_t = 1/(t+1)``, ``sf_t^2 = 1 + 1/t``: the recursive
+    residuals of a constant mean. The gains converge to ``1 - theta`` of the IMA(1,1) form.
+    """
+    K = np.empty(n)
+    F = np.empty(n)
+    K[0], F[0] = 1.0, np.inf
+    if lam == 0.0:
+        t = np.arange(1, n, dtype=np.float64)
+        K[1:] = 1.0 / (t + 1.0)
+        F[1:] = 1.0 + 1.0 / t
+        return K, np.sqrt(F)
+    p_inf = 0.5 * (lam + np.sqrt(lam * lam + 4.0 * lam))
+    P = 1.0 + lam
+    for t in range(1, n):
+        F[t] = P + 1.0
+        K[t] = P / F[t]
+        P = P / F[t] + lam
+        if abs(P - p_inf) < 1e-13 * p_inf:
+            F[t + 1 :] = p_inf + 1.0
+            K[t + 1 :] = p_inf / (p_inf + 1.0)
+            break
+    return K, np.sqrt(F)
+
+
+def ll_innovations(x: np.ndarray, lam: float) -> np.ndarray:
+    """Standardised innovations of the diffuse local-level filter along axis 0 (row 0 is 0).
+
+    The level recursion ``m_{t+1} = (1 - K_t) m_t + K_t x_t`` (``m_1 = x_0``) is evaluated in closed
+    form (cumulative products) while the gain still varies, then by ``lfilter`` once it is constant.
+    """
+    x = np.asarray(x, np.float64)
+    n = x.shape[0]
+    K, sf = local_level_gains(float(lam), n)
+    shp = (n,) + (1,) * (x.ndim - 1)
+    m = np.empty_like(x)
+    m[0] = 0.0
+    if n == 1:
+        return np.zeros_like(x)
+    # head: t = 1 .. tc-1 with varying K (tc: first index of the constant gain, or n)
+    kc = K[-1]
+    same = np.isclose(K, kc, rtol=1e-12, atol=0.0)
+    same[:2] = False
+    tc = n if lam == 0.0 or not same.any() else int(np.argmax(same))
+    a = 1.0 - K[1:tc]
+    A = np.cumprod(a)  # A_t = prod_{s=1..t} a_s, t = 1..tc-1
+    csum = np.cumsum((K[1:tc] / A).reshape((-1,) + (1,) * (x.ndim - 1)) * x[1:tc], axis=0)
+    m[1] = x[0]
+    if tc > 2:
+        m[2:tc] = A[:-1].reshape((-1,) + shp[1:]) * (x[0] + csum[:-1])
+    if tc < n:
+        m_tc = A[-1] * (x[0] + csum[-1]) if tc > 1 else x[0]
+        c = 1.0 - kc
+        zi = (c * np.asarray(m_tc))[None]
+        out, _ = lfilter([kc], [1.0, -c], x[tc:-1], axis=0, zi=zi) if tc < n - 1 else (np.zeros((0,) + x.shape[1:]), None)
+        m[tc] = m_tc
+        m[tc + 1 :] = out
+    v = (x - m) / sf.reshape(shp)
+    v[0] = 0.0
+    return v
+
+
+def _logdet_gram(a: np.ndarray) -> tuple[float, int]:
+    """log det of the Gram of the non-degenerate columns of ``a`` (scale-normalised) and their count."""
+    nrm = np.sqrt(np.sum(a * a, 0))
+    keep = nrm > 1e-9 * max(float(nrm.max()), 1e-300) if a.shape[1] else np.zeros(0, bool)
+    if not keep.any():
+        return 0.0, 0
+    ak = a[:, keep] / nrm[keep]
+    sign, ld = np.linalg.slogdet(ak.T @ ak)
+    return float(ld + 2.0 * np.sum(np.log(nrm[keep]))), int(keep.sum())
+
+
+def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, lams=LAMBDAS, max_order: int = 16) -> np.ndarray:
+    """Restricted log-likelihood profile of the random-walk level of a residual, one per ``lams``.
+
+    For each ``lam`` (random-walk to white variance ratio per sample) the residual ``e`` (N,) and
+    the regressors ``X`` (N, Q) it will be tested against are passed through the exact diffuse
+    local-level filter (:func:`ll_innovations`), then an AR(p) (order by BIC up to
+    ``max_order``) on the generalised-least-squares residual; the restricted log-likelihood is
+    ``-1/2 [(m - k) log(RSS / (m - k)) + sum log F_t + log det(X_w^T X_w) + p log m]``.
+    The ``log det`` term is what keeps slow regressors (drift, temperature) from absorbing a
+    random walk and shrinking its estimate, which made ordinary (or residual-based) estimates
+    call drift significant on pure random-walk noise. Returns (len(lams),); all ``-inf`` when
+    there are too few rows.
+    """
+    e = np.asarray(e, np.float64)
+    n = len(e)
+    fi = fill_index(valid)
+    ev = e[fi]
+    Xv = np.zeros((n, 0)) if X is None else np.asarray(X, np.float64)[fi]
+    nrm = np.sqrt(np.sum(Xv * Xv, 0))
+    Xv = Xv[:, nrm > 1e-12 * max(float(nrm.max()) if nrm.size else 0.0, 1e-300)]
+    rows = gap_ok(valid, 500 + max_order) & (np.arange(n) > max_order)
+    if rows.sum() < 4 * (max_order + Xv.shape[1]) + 50:
+        return np.full(len(lams), -np.inf)
+    orders = [p for p in ORDERS if p <= max_order]
+    prof = np.full(len(lams), -np.inf)
+    for j, lam in enumerate(lams):
+        K, sf = local_level_gains(float(lam), n)
+        ew = ll_innovations(ev, lam)
+        Xw = ll_innovations(Xv, lam) if Xv.shape[1] else Xv
+        # GLS residual under the random-walk stage alone, then its AR order
+        if Xw.shape[1]:
+            b = np.linalg.lstsq(Xw[rows], ew[rows], rcond=None)[0]
+            u = ew - Xw @ b
+        else:
+            u = ew
+        lag = _lag_matrix(u, orders[-1])[rows]
+        y = u[rows]
+        gram, rhs, yy = lag.T @ lag, lag.T @ y, float(y @ y)
+        pb = None
+        for p in orders:
+            if p == 0:
+                a, r_ = np.zeros(0), yy
+            else:
+                a = np.linalg.solve(gram[:p, :p] + 1e-12 * np.trace(gram[:p, :p]) / p * np.eye(p), rhs[:p])
+                r_ = yy - 2 * a @ rhs[:p] + a @ gram[:p, :p] @ a
+            bic = len(y) * np.log(max(r_, 1e-300) / len(y)) + p * np.log(len(y))
+            if pb is None or bic < pb[0]:
+                pb = (bic, a)
+        taps = np.concatenate([[1.0], -pb[1]])
+        e2 = lfilter(taps, 1.0, ew)[rows]
+        X2 = lfilter(taps, 1.0, Xw, axis=0)[rows] if Xw.shape[1] else np.zeros((int(rows.sum()), 0))
+        if X2.shape[1]:
+            b2 = np.linalg.lstsq(X2, e2, rcond=None)[0]
+            rss2 = float(np.sum((e2 - X2 @ b2) ** 2))
+        else:
+            rss2 = float(e2 @ e2)
+        ld, k = _logdet_gram(X2) if X2.shape[1] else (0.0, 0)
+        m = len(e2)
+        ll = -0.5 * ((m - k) * np.log(max(rss2, 1e-300) / (m - k)) + 2.0 * np.sum(np.log(sf[rows])) + ld + len(pb[1]) * np.log(m))
+        prof[j] = ll
+    return prof
+
+
+def theta_of(lam: float) -> float:
+    """IMA(1,1) coefficient ``1 - K_inf`` of the local-level model with ratio ``lam`` (1 for 0)."""
+    if lam <= 0:
         return 1.0
-    cs = np.concatenate([[0.0], np.cumsum(x - x.mean())])
-    ms, av = [], []
-    m = 1
-    while 4 * m <= n // 2:
-        d = cs[2 * m :] - 2 * cs[m:-m] + cs[: -2 * m]
-        av.append(np.mean(d * d) / (2.0 * m * m))
-        ms.append(m)
-        m *= 2
-    ms, av = np.array(ms, float), np.array(av)
-    A = np.stack([1.0 / ms, ms / 3.0], 1) / av[:, None]
-    r, q = np.linalg.lstsq(A, np.ones_like(av), rcond=None)[0]
-    if not (q > 0 and r > 0) or q * ms[-1] / 3.0 < 0.25 * r / ms[-1]:
-        return 1.0  # no random walk, or one far below the white level even at the longest averaging time
-    lam = q / r
-    return float(np.clip(1.0 + lam / 2.0 - np.sqrt(lam + lam * lam / 4.0), 0.0, 0.99995))
+    p = 0.5 * (lam + np.sqrt(lam * lam + 4.0 * lam))
+    return float(1.0 - p / (p + 1.0))
 
 
-def fit_ar(e: np.ndarray, valid: np.ndarray, max_order: int = 64, max_theta: float = 1.0) -> ARModel:
-    """Fit AR(p) to one residual axis by least squares, ``p`` chosen by BIC.
+def choose_lambda(profiles: list[np.ndarray], lams=LAMBDAS, pooled: bool = True, slack: float = 0.0) -> list[float]:
+    """Random-walk level per axis from REML profiles (:func:`reml_profile`).
+
+    ``pooled``: one level for all axes of a sensor (profiles summed: three times the information
+    when the axes share a noise process). ``slack > 0``: the largest ``lam`` whose profile is
+    within ``slack`` of the maximum (the upper end of a profile-likelihood interval; 1.92 is
+    about 95 %), a conservative choice for tests of slow effects that a random walk can mimic
+    (Berger-Boos: the p-value is maximised over the plausible noise levels).
+    """
+    lams = np.asarray(lams)
+
+    def pick(pr):
+        if not np.isfinite(pr).any():
+            return 0.0
+        ok = pr >= np.max(pr) - slack
+        return float(lams[ok].max()) if slack > 0 else float(lams[int(np.argmax(pr))])
+
+    if pooled:
+        lam = pick(np.sum(profiles, axis=0))
+        return [lam] * len(profiles)
+    return [pick(p) for p in profiles]
+
+
+def fit_ar(e: np.ndarray, valid: np.ndarray, max_order: int = 64, X: np.ndarray | None = None, lam: float | None = None) -> ARModel:
+    """Noise model of one residual axis: random-walk stage by REML, then AR(p) with ``p`` by BIC.
 
     Args:
         e: (N,) residual (physical units).
         valid: (N,) bool, samples that may be used (filter windows must lie inside).
-        max_order: largest order tried.
-        max_theta: upper bound on the IMA coefficient (pass the baseline residual's value so a
-            slow effect fitted in an earlier pass cannot hide a random walk that mimics it).
+        max_order: largest AR order tried.
+        X: (N, Q) regressors the residual will be tested against (baseline and candidate
+            effects), used by the restricted likelihood of :func:`reml_profile`.
+        lam: random-walk level (see :func:`choose_lambda`); estimated from ``e`` alone if None.
     """
     e = np.asarray(e, np.float64)
-    # stage 1: random walk under white noise. Its Allan variance at averaging m samples is
-    # r/m + q m/3 (r: white variance, q: random-walk increment variance per sample); fit (r, q)
-    # by weighted least squares on octave-spaced m, then theta of the equivalent IMA(1,1).
     ev = e[fill_index(valid)]
-    ok = gap_ok(valid, 64)
-    theta = min(_ima_theta(ev[ok]), max_theta)
-    best_th = (0.0, theta)
-    theta = 1.0 if best_th is None else best_th[1]
+    if lam is None:
+        lam = choose_lambda([reml_profile(e, valid, X)])[0]
+    theta = theta_of(lam)
     mem = _ima_memory(theta)
     valid = gap_ok(valid, mem) if theta < 1 else valid
-    e = _ima(ev, theta)
+    e = _stage1(ev, lam)
     orders = [p for p in ORDERS if p <= max_order]
     pmax = orders[-1]
     rows = gap_ok(valid, pmax)
@@ -145,7 +297,7 @@ def fit_ar(e: np.ndarray, valid: np.ndarray, max_order: int = 64, max_theta: flo
     y = e[rows]
     n = len(y)
     if n < 4 * pmax + 10:
-        return ARModel(np.zeros(0), float(np.std(e[valid]) + 1e-30), 0, theta, mem)
+        return ARModel(np.zeros(0), float(np.std(e[valid]) + 1e-30), 0, theta, mem, lam)
     gram = lag.T @ lag
     rhs = lag.T @ y
     yy = float(y @ y)
@@ -161,13 +313,19 @@ def fit_ar(e: np.ndarray, valid: np.ndarray, max_order: int = 64, max_theta: flo
         bic = n * np.log(rss / n) + p * np.log(n)
         if best is None or bic < best[0]:
             best = (bic, a, np.sqrt(rss / max(n - p, 1)), p)
-    return ARModel(best[1], float(best[2]), int(best[3]), theta, mem + int(best[3]))
+    return ARModel(best[1], float(best[2]), int(best[3]), theta, mem + int(best[3]), lam)
+
+
+def _stage1(x: np.ndarray, lam: float) -> np.ndarray:
+    """Random-walk stage: exact diffuse local-level innovations for ``lam > 0``, identity for 0."""
+    return ll_innovations(x, lam) if lam > 0 else np.asarray(x, np.float64)
 
 
 def apply_filter(x: np.ndarray, ar: ARModel) -> np.ndarray:
-    """Whiten an (N, ...) array along axis 0: IMA stage, then ``(v_t - sum_k a_k v_{t-k}) / sigma``."""
+    """Whiten an (N, ...) array along axis 0: random-walk stage (:func:`ll_innovations`), then
+    ``(v_t - sum_k a_k v_{t-k}) / sigma``."""
     b = np.concatenate([[1.0], -ar.a])
-    return lfilter(b, 1.0, _ima(np.asarray(x, np.float64), ar.theta), axis=0) / ar.sigma
+    return lfilter(b, 1.0, _stage1(x, ar.lam), axis=0) / ar.sigma
 
 
 def ljung_box(u: np.ndarray, lags: int = 20) -> float:
