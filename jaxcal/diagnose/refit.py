@@ -38,7 +38,7 @@ import numpy as np
 import optimistix as optx
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.whiten import ARModel, fill_index, gap_ok
+from jaxcal.diagnose.whiten import ARModel, fill_index, gap_ok, local_level_gains
 
 MAX_TAPS = 65
 
@@ -60,29 +60,34 @@ class RefitResult(NamedTuple):
     n_steps: int = 0
 
 
-def _filters(ars: list[ARModel]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _filters(ars: list[ARModel], n: int) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """AR taps (3, MAX_TAPS), innovation sd (3,) and the random-walk stage as per-sample gains
+    ``K`` and inverse innovation sd factors ``sfi`` (both (n, 3); ``K = 0, sfi = 1``: identity)."""
     taps = np.zeros((3, MAX_TAPS))
     sig = np.zeros(3)
-    th = np.ones(3)
+    K, sfi = np.zeros((n, 3)), np.ones((n, 3))
     for i, ar in enumerate(ars):
         taps[i, 0] = 1.0
         taps[i, 1 : 1 + len(ar.a)] = -ar.a
         sig[i] = ar.sigma
-        th[i] = ar.theta
-    return taps, sig, th
+        if ar.lam > 0:
+            k, sf = local_level_gains(float(ar.lam), n)
+            K[:, i], sfi[:, i] = k, 1.0 / sf
+    return taps, sig, (K, sfi)
 
 
-def _whiten(r, taps, sig, th):
-    """IMA stage ``(1 - L)/(1 - th L)`` (scan) then the AR FIR, per axis (see whiten.py)."""
+def _whiten(r, taps, sig, ll):
+    """Random-walk stage (exact diffuse local-level innovations, scan; identity where ``K = 0``)
+    then the AR FIR, per axis (the same filter as :func:`jaxcal.diagnose.whiten.apply_filter`)."""
     n = r.shape[0]
-    d = jnp.diff(r, axis=0, prepend=r[:1])
+    K, sfi = ll
 
-    def step(carry, dt_):
-        y = dt_ + th * carry
-        return y, y
+    def step(m, xs):
+        x, k, s = xs
+        v = x - m
+        return m + k * v, v * s
 
-    _, v = jax.lax.scan(step, jnp.zeros(3, r.dtype), d)
-    v = jnp.where(th[None, :] < 1.0, v, r)
+    _, v = jax.lax.scan(step, jnp.zeros(3, r.dtype), (r, K, sfi))
     cols = [jnp.convolve(v[:, i], taps[i], mode="full")[:n] / sig[i] for i in range(3)]
     return jnp.stack(cols, axis=1)
 
@@ -147,7 +152,7 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     standard error only).
     """
     mask = E.effect_mask(sensor, names)
-    taps, sig, th = _filters(ars)
+    taps, sig, th = _filters(ars, len(y))
     row_w = np.stack([gap_ok(rows, ar.memory) for ar in ars], 1).astype(np.float64)
     nb = E.N_BASE[kind]
     with jax.enable_x64(True):
@@ -155,7 +160,7 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
         phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
         phi, jac, hess, rr, n_data, n_steps = _refit(
             kind, sensor, phi0, jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64),
-            jnp.asarray(fill_index(rows)), jnp.asarray(row_w), jnp.asarray(taps), jnp.asarray(sig), jnp.asarray(th),
+            jnp.asarray(fill_index(rows)), jnp.asarray(row_w), jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(a) for a in th),
             max_steps=max_steps,
         )
         phi, jac, hess, rr = (np.asarray(a) for a in (phi, jac, hess, rr))
