@@ -285,3 +285,33 @@ def test_prior_fills_unobserved_direction_only():
     assert abs(fit.gyr.A[1, 1] - S_TRUE[1]) < 5e-3
     fit0, _ = _fit(XY_TURNS)
     assert abs(fit0.gyr.A[0, 0] - S_TRUE[0]) < 2e-3  # same observed value without the prior
+
+
+def test_fair_split_never_scores_a_fitted_sample():
+    """imucal session, fair time split (experiments.real_data): on every time fold and every gyro
+    fold, the samples jaxcal fits on (calibration halves, transitions and turns in use) and the
+    sections imucal is given never meet the samples scored (other halves, the left-out transition or
+    turn); and every face's samples are either fitted or scored, in two halves of equal size (+-1)."""
+    import json
+
+    from experiments import real_data as rd
+
+    sec = json.loads((DATA / "imucal_ferraris_example" / "example_ferraris_session_list.json").read_text())
+    bounds = {n: (v["start"], v["end"]) for n, v in sec.items()}
+    for fold in (0, 1):
+        plan = rd.fair_split_plan(bounds, fold)
+        gw, kw = rd.fair_split_weights(len(plan["spans"]), len(plan["turns"]))
+        assert gw.shape == (8, 5) and kw.shape == (8, 3) and (gw == 0).sum() == 5 and (kw == 0).sum() == 3
+        imu = rd.imucal_sections(plan, bounds)
+        imu_samples = set().union(*(set(range(a, b)) for a, b in imu.values()))
+        for g, k in zip(gw, kw):
+            fitted, acc_scored, gyr_scored = rd.fair_split_samples(plan, g, k)
+            assert acc_scored and gyr_scored
+            assert not fitted & acc_scored and not fitted & gyr_scored
+            assert not imu_samples & acc_scored
+        for n, (fa, fb), (sa, sb) in zip(plan["faces"], plan["fit_iv"], plan["score_iv"]):
+            assert {fa, fb, sa, sb} >= set(bounds[n]) and abs((fb - fa) - (sb - sa)) <= 1
+        # transitions touch no face; turns are separate from faces and transitions
+        face_samples = set().union(*(set(range(*bounds[n])) for n in rd.FACES))
+        assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan["spans"]))
+        assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan["turns"]))
