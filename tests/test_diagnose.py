@@ -14,7 +14,7 @@ import pytest
 from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.kinematics import reference_from_pose
-from jaxcal.diagnose.simulate import RichConfig, simulate_recording
+from jaxcal.diagnose.simulate import RichConfig, simulate_batch, simulate_recording
 from jaxcal.diagnose.whiten import LAMBDAS, apply_filter, fit_ar, ll_innovations, reml_profile
 from jaxcal.rotation import exp_so3, quat_from_matrix
 
@@ -136,6 +136,21 @@ def test_random_walk_null_names_nothing():
         rec, _ = simulate_recording(jax.random.PRNGKey(seed), cfg)
         rep = diagnose_recording(rec)
         assert rep["effects"] == [], [(e["sensor"], e["name"]) for e in rep["effects"]]
+
+
+def test_simulate_batch_equals_one_by_one():
+    # the vmapped benchmark simulation must give exactly the recordings of the one-seed function
+    cfg = RichConfig(n=1500)
+    th = np.zeros((2, E.N_THETA["acc"]))
+    th[1, E.slot("acc", "lever_arm").start : 3] = [0.01, -0.02, 0.005]
+    batch = simulate_batch(jax.vmap(jax.random.PRNGKey)(jnp.arange(5, 7)), cfg, {"acc": th}, [{}, {"gyr": 2000.0}])
+    for i, (rec_b, truth_b) in enumerate(batch):
+        eff = {("acc", "lever_arm"): {"r": th[i, :3]}} if i else None
+        rec, truth = simulate_recording(jax.random.PRNGKey(5 + i), cfg, eff, {"gyr": 2000.0} if i else None)
+        for k in ("acc", "gyr", "acc_ref", "gyr_ref", "temp"):
+            np.testing.assert_allclose(rec_b[k], rec[k], atol=1.0 if k in ("acc", "gyr") else 1e-6)
+        np.testing.assert_allclose(truth_b["theta"]["acc"], truth["theta"]["acc"])
+    assert np.max(np.abs(batch[1][0]["gyr"])) <= 2000.0
 
 
 def test_reference_from_pose_constant_turn():

@@ -141,3 +141,52 @@ def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = N
         truth["scale"][sensor] = np.asarray(s)
         truth["bias"][sensor] = np.asarray(b)
     return rec, truth
+
+
+def simulate_batch(keys: jax.Array, cfg: RichConfig, thetas: dict[str, np.ndarray] | None = None,
+                   saturation: list[dict] | None = None) -> list[tuple[dict, dict]]:
+    """Many recordings at once: :func:`simulate_recording` vmapped over seeds (and effect sizes).
+
+    Args:
+        keys: (S, 2) PRNG keys, one per recording (recording ``i`` equals
+            ``simulate_recording(keys[i], cfg, ...)`` up to float rounding).
+        cfg: :class:`RichConfig` shared by all.
+        thetas: ``{sensor: (S, P)}`` flat effect parameters per recording
+            (:func:`jaxcal.diagnose.effects.theta_from_params`); missing sensors: no effect.
+        saturation: per recording ``{sensor: limit_lsb}`` (or None).
+
+    Returns:
+        ``[(rec, truth), ...]`` as :func:`simulate_recording` returns them.
+    """
+    keys = jnp.asarray(keys)
+    n_rec = keys.shape[0]
+    thetas = thetas or {}
+    saturation = saturation or [{}] * n_rec
+    ks = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
+    inp, temp = jax.vmap(lambda k: motion(k, cfg))(ks[:, 0])
+    out_raw = {}
+    th_all = {}
+    for j, sensor in ((1, "acc"), (2, "gyr")):
+        th = np.zeros((n_rec, E.N_THETA[sensor])) if sensor not in thetas else np.asarray(thetas[sensor], np.float64)
+        th_all[sensor] = th
+        out_raw[sensor] = jax.vmap(lambda k, t, i: _sensor_raw(k, cfg, sensor, t, i))(ks[:, j], jnp.asarray(th, jnp.float32), inp)
+    res = []
+    for r in range(n_rec):
+        rec = {"t": np.arange(cfg.n) / cfg.fs, "fs": cfg.fs, "acc_ref": np.asarray(inp.f[r]), "gyr_ref": np.asarray(inp.w[r]),
+               "acc_lsb_per_g": cfg.acc_lsb_per_g, "gyr_lsb_per_rads": cfg.gyr_lsb_per_rads,
+               "acc_bias_lsb": 0.0, "gyr_bias_lsb": 0.0}
+        if cfg.temp_profile != "none":
+            rec["temp"] = np.asarray(temp[r])
+        truth: dict = {"theta": {}, "scale": {}, "bias": {}, "wdot": np.asarray(inp.wdot[r])}
+        for sensor in ("acc", "gyr"):
+            raw, s, b = (np.asarray(a[r]) for a in out_raw[sensor])
+            raw = np.round(raw.astype(np.float64))
+            if sensor in saturation[r]:
+                lim = float(saturation[r][sensor])
+                raw = np.clip(raw, -lim, lim)
+            rec[sensor] = raw
+            truth["theta"][sensor] = th_all[sensor][r]
+            truth["scale"][sensor] = s
+            truth["bias"][sensor] = b
+        res.append((rec, truth))
+    return res
