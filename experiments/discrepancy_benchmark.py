@@ -9,9 +9,12 @@ effects wrongly named, parameter error, 95 % interval coverage, held-out RMS gai
 discoveries on null recordings (white noise, and with bias random walk); the temperature ramp vs
 bias drift confound (warned?) and the heat-and-cool cycle (resolved?); a 300 ms time offset.
 
-Writes ``results/discrepancy_benchmark.json`` and the benchmark tables into
-``results/discrepancy.md`` (section between markers; the real-data section is written by
-``experiments/discrepancy_real.py``), and ``results/figures/discrepancy_detection.png``.
+Every group of seeds is simulated in one vmapped call (``simulate_batch``). The same script
+diagnoses the real TUM-VI recording as recorded and with known effects concealed in it, and times
+one diagnosis of a 300k-sample recording.
+
+Writes ``results/discrepancy.{md,json}`` and ``results/figures/discrepancy_*.png``
+(``--quick``, as ``make run`` does: ``discrepancy_quick.*``); ``--part`` runs one section.
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import numpy as np
 
 from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.simulate import RichConfig, simulate_recording
+from jaxcal.diagnose.simulate import RichConfig, simulate_batch, simulate_recording
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 SIZES = (0.5, 1.0, 2.0, 5.0)
@@ -73,11 +76,30 @@ def _estimate(rep: dict, sensor: str, name: str):
     return None, None, None
 
 
+def _keys(seeds) -> jax.Array:
+    return jax.vmap(jax.random.PRNGKey)(jax.numpy.asarray(np.asarray(seeds), jax.numpy.uint32))
+
+
+def _flat(sensor: str, eff: dict) -> np.ndarray:
+    return E.theta_from_params(sensor, {nm: p for (s, nm), p in eff.items() if s == sensor})
+
+
+def _diagnose_all(batch, run_times: list) -> list[dict]:
+    reps = []
+    for rec, _ in batch:
+        t0 = time.perf_counter()
+        reps.append(diagnose_recording(rec))
+        run_times.append(time.perf_counter() - t0)
+    return reps
+
+
 def run(quick: bool) -> dict:
+    """The simulation benchmark; every group of seeds is simulated in one vmapped call
+    (:func:`jaxcal.diagnose.simulate.simulate_batch`), then diagnosed one by one."""
     n = 6000 if quick else 12000
-    seeds_main = 8 if quick else 30
-    seeds_other = 3 if quick else 8
-    seeds_null = 12 if quick else 60
+    seeds_main = 8 if quick else 20
+    seeds_other = 3 if quick else 6
+    seeds_null = 12 if quick else 40
     cfg = RichConfig(n=n)
     cfg_rw = cfg._replace(acc_rw_g_per_sqrt_s=1e-4, gyr_rw_rads_per_sqrt_s=3e-5)
     t_start = time.perf_counter()
@@ -86,19 +108,18 @@ def run(quick: bool) -> dict:
                             "gyr_noise_rads": cfg.gyr_noise_rads, "rw": [cfg_rw.acc_rw_g_per_sqrt_s, cfg_rw.gyr_rw_rads_per_sqrt_s]}}
     # ---- null recordings
     nulls = {}
-    run_times = []
+    run_times: list = []
+    t_sim = 0.0
     for label, c in (("white", cfg), ("random_walk", cfg_rw)):
-        fd, names = 0, []
-        for seed in range(seeds_null):
-            rec, _ = simulate_recording(jax.random.PRNGKey(10_000 + seed), c)
-            t0 = time.perf_counter()
-            rep = diagnose_recording(rec)
-            run_times.append(time.perf_counter() - t0)
-            got = _named(rep)
-            fd += bool(got)
-            names += [f"{s} {nm}" for s, nm in got]
-            if label == "white":
-                nulls[seed] = (rec, rep)
+        t0 = time.perf_counter()
+        batch = simulate_batch(_keys(10_000 + np.arange(seeds_null)), c)
+        t_sim += time.perf_counter() - t0
+        reps = _diagnose_all(batch, run_times)
+        named = [_named(r) for r in reps]
+        fd = sum(bool(g) for g in named)
+        names = [f"{s} {nm}" for g in named for s, nm in sorted(g)]
+        if label == "white":
+            nulls = {seed: (batch[seed][0], reps[seed]) for seed in range(seeds_null)}
         out.setdefault("null", {})[label] = {"runs": seeds_null, "false_discovery_runs": fd, "rate": fd / seeds_null, "named": names}
         print(f"null {label}: {fd}/{seeds_null} runs named something {names}", flush=True)
     # ---- concealed effects
@@ -107,14 +128,15 @@ def run(quick: bool) -> dict:
     for sensor, name in EFFECTS:
         for m in SIZES:
             ns = seeds_main if m == 2.0 else seeds_other
+            seeds = list(range(ns))
+            inj = [_inject(rng, nulls[sd % seeds_null][1], nulls[sd % seeds_null][0], sensor, name, m, cfg) for sd in seeds]
+            t0 = time.perf_counter()
+            batch = simulate_batch(_keys([10_000 + sd % seeds_null for sd in seeds]), cfg,
+                                   {sensor: np.stack([_flat(sensor, e) for e, _, _ in inj])}, [sat for _, sat, _ in inj])
+            t_sim += time.perf_counter() - t0
+            reps = _diagnose_all(batch, run_times)
             det, cover, comps, err, extra, gain = 0, 0, 0, [], 0, []
-            for seed in range(ns):
-                rec0, rep0 = nulls[seed % seeds_null]
-                eff, sat, truth = _inject(rng, rep0, rec0, sensor, name, m, cfg)
-                rec, _ = simulate_recording(jax.random.PRNGKey(10_000 + seed % seeds_null), cfg, eff, sat)
-                t0 = time.perf_counter()
-                rep = diagnose_recording(rec)
-                run_times.append(time.perf_counter() - t0)
+            for (_, _, truth), rep in zip(inj, reps):
                 others = _named(rep) - {(sensor, name)}
                 extra += bool(others)
                 est, se, e = _estimate(rep, sensor, name)
@@ -136,36 +158,35 @@ def run(quick: bool) -> dict:
     # ---- confounding: temperature ramp vs drift, heat-and-cool cycle
     conf = []
     for profile in ("ramp", "cycle"):
+        c = cfg._replace(temp_profile=profile)
+        keys = _keys(20_000 + np.arange(seeds_other))
+        base = simulate_batch(keys, c)
+        reps0 = _diagnose_all(base, run_times)
         for true_name in ("temperature_bias", "bias_drift"):
-            ns = seeds_other
-            named_true = named_other = warned = 0
-            for seed in range(ns):
-                c = cfg._replace(temp_profile=profile)
-                key = jax.random.PRNGKey(20_000 + seed)
-                rec0, _ = simulate_recording(key, c)
-                rep0 = diagnose_recording(rec0)
-                eff, _, _ = _inject(rng, rep0, rec0, "acc", true_name, 3.0, c)
-                rec, _ = simulate_recording(key, c, eff)
-                rep = diagnose_recording(rec)
-                got = _named(rep)
-                other = "bias_drift" if true_name == "temperature_bias" else "temperature_bias"
-                named_true += ("acc", true_name) in got
-                named_other += ("acc", other) in got
-                warned += any("temperature_bias" in w and "bias_drift" in w and "confounded" in w for w in rep["warnings"])
-            conf.append({"profile": profile, "true_effect": true_name, "size_x_mds": 3.0, "seeds": ns, "named_true": named_true,
+            inj = [_inject(rng, rep0, rec0, "acc", true_name, 3.0, c) for (rec0, _), rep0 in zip(base, reps0)]
+            batch = simulate_batch(keys, c, {"acc": np.stack([_flat("acc", e) for e, _, _ in inj])})
+            reps = _diagnose_all(batch, run_times)
+            other = "bias_drift" if true_name == "temperature_bias" else "temperature_bias"
+            got = [_named(r) for r in reps]
+            named_true = sum(("acc", true_name) in g for g in got)
+            named_other = sum(("acc", other) in g for g in got)
+            warned = sum(any("temperature_bias" in w and "bias_drift" in w and "confounded" in w for w in r["warnings"]) for r in reps)
+            conf.append({"profile": profile, "true_effect": true_name, "size_x_mds": 3.0, "seeds": seeds_other, "named_true": named_true,
                          "named_other": named_other, "confound_warned": warned})
-            print(f"confound {profile} {true_name}: true {named_true}/{ns}, other {named_other}, warned {warned}", flush=True)
+            print(f"confound {profile} {true_name}: true {named_true}/{seeds_other}, other {named_other}, warned {warned}", flush=True)
     out["confound"] = conf
     # ---- large time offset
+    taus = [0.3 * (1 if k % 2 == 0 else -1) for k in range(seeds_other)]
+    th = np.zeros((seeds_other, E.N_THETA["gyr"]))
+    th[:, E.slot("gyr", "time_offset").start] = taus
+    reps = _diagnose_all(simulate_batch(_keys(30_000 + np.arange(seeds_other)), cfg, {"gyr": th}), run_times)
     big = []
-    for seed in range(seeds_other):
-        tau = 0.3 * (1 if seed % 2 == 0 else -1)
-        rec, _ = simulate_recording(jax.random.PRNGKey(30_000 + seed), cfg, {("gyr", "time_offset"): {"tau": np.array([tau])}})
-        rep = diagnose_recording(rec)
+    for tau, rep in zip(taus, reps):
         est, se, _ = _estimate(rep, "gyr", "time_offset")
         big.append({"tau_true": tau, "tau_est": None if est is None else float(est[0]), "stderr": None if se is None else float(se[0])})
     out["large_time_offset"] = big
-    out["timing"] = {"runs": len(run_times), "median_run_s": float(np.median(run_times)), "total_s": time.perf_counter() - t_start}
+    out["timing"] = {"runs": len(run_times), "median_run_s": float(np.median(run_times)), "total_s": time.perf_counter() - t_start,
+                     "simulation_s": t_sim}
     return out
 
 
@@ -232,9 +253,9 @@ def figure(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_md_section(text: str, marker: str) -> None:
-    """Replace the section between ``<!-- marker -->`` lines in results/discrepancy.md."""
-    p = RESULTS / "discrepancy.md"
+def write_md_section(text: str, marker: str, stem: str = "discrepancy") -> None:
+    """Replace the section between ``<!-- marker -->`` lines in ``results/STEM.md``."""
+    p = RESULTS / f"{stem}.md"
     head = "# Discrepancy diagnosis (`jaxcal diagnose`, issue 4)\n\n"
     cur = p.read_text() if p.exists() else head
     b, e = f"<!-- {marker} begin -->", f"<!-- {marker} end -->"
@@ -354,7 +375,7 @@ def _case(rep0: dict, rep: dict, sensor: str, name: str, truth: np.ndarray, wall
     return row
 
 
-def real_data(quick: bool) -> dict:
+def real_data(quick: bool, prefix: str = "discrepancy") -> dict:
     """TUM-VI room1: what the tool finds as recorded; then known effects concealed in it.
 
     Fixed cases (the earlier ones): lever arm r = [0.04, -0.03, 0.06] m through the pose; both IMU
@@ -373,7 +394,7 @@ def real_data(quick: bool) -> dict:
     out["as_recorded_time_s"] = time.perf_counter() - t0
     figs = rep.pop("_figures")
     for k, f in figs.items():
-        f.savefig(RESULTS / "figures" / f"discrepancy_tumvi_{k}.png", dpi=110)
+        f.savefig(RESULTS / "figures" / f"{prefix}_tumvi_{k}.png", dpi=110)
         plt.close(f)
     out["as_recorded"] = rep
     fixed = []
@@ -391,7 +412,7 @@ def real_data(quick: bool) -> dict:
         c["mds"] = rep["sensors"][c["sensor"]]["mds"][c["effect"]]["components"]
         print(f"tumvi fixed {c['sensor']} {c['effect']}: {c.get('recovered')} se {c.get('stderr_diff')} inside {c.get('inside_95')} other {c['other_effects']}", flush=True)
     out["fixed"] = fixed
-    n_real = 2 if quick else 3
+    n_real = 0 if quick else 3  # quick (make run): as recorded and the fixed cases only
     rng = np.random.default_rng(4)
     cases = []
     for sensor, name in REAL_EFFECTS:
@@ -406,7 +427,8 @@ def real_data(quick: bool) -> dict:
     out["random"] = {"size_x_mds": REAL_SIZE_X_MDS, "realisations": n_real, "cases": cases}
     times = [c["diagnosis_s"] for c in cases] + [out["as_recorded_time_s"]]
     out["timing"] = {"median_diagnosis_s": float(np.median(times)), "max_diagnosis_s": float(np.max(times)), "runs": len(times)}
-    _real_figure(out, RESULTS / "figures" / "discrepancy_tumvi_concealed.png")
+    out["figure_prefix"] = prefix
+    _real_figure(out, RESULTS / "figures" / f"{prefix}_tumvi_concealed.png")
     return out
 
 
@@ -451,6 +473,7 @@ def _fmt(v, nd=4) -> str:
 
 
 def real_markdown(res: dict) -> str:
+    pre = res.get("figure_prefix", "discrepancy")
     if "missing" in res:
         return f"## Real recording\n\nData file {res['missing']} not found; section skipped.\n"
     rep = res["as_recorded"]
@@ -479,7 +502,7 @@ def real_markdown(res: dict) -> str:
         w = d["locate"]["where"]
         L.append(f"- {s}: baseline residual largest in {w['breakdown']} `{w['bin']}` ({w['rms_ratio']:.2f}x overall); "
                  f"band {w['band_hz'][0]:g}-{w['band_hz'][1]:g} Hz holds {w['band_excess']:.2f}x its white share.")
-    L += ["", "![tumvi acc](figures/discrepancy_tumvi_residuals_acc.png)", "![tumvi gyr](figures/discrepancy_tumvi_residuals_gyr.png)", "",
+    L += ["", f"![tumvi acc](figures/{pre}_tumvi_residuals_acc.png)", f"![tumvi gyr](figures/{pre}_tumvi_residuals_gyr.png)", "",
           "### Concealed known effects in the real recording", "",
           "Recovered = estimate on the concealed recording minus the as-recorded estimate (0 where the as-recorded run did not name "
           "the effect); its interval is 1.96 x hypot(s.e. concealed, s.e. as recorded) (conservative: both estimates share the "
@@ -518,7 +541,7 @@ def real_markdown(res: dict) -> str:
     allins = [b for c in rr["cases"] if c["named"] for b in c["inside_95"]]
     L += ["", f"Overall: {sum(c['named'] for c in rr['cases'])}/{len(rr['cases'])} concealed effects named; "
           f"{sum(allins)}/{len(allins)} parameter components ({100 * sum(allins) / max(len(allins), 1):.0f} %) inside their 95 % interval.", "",
-          "![tumvi concealed](figures/discrepancy_tumvi_concealed.png)", "", "What fell short (measured above):", ""]
+          f"![tumvi concealed](figures/{pre}_tumvi_concealed.png)", "", "What fell short (measured above):", ""]
     for c in res["fixed"]:
         if not c["named"] or not all(c["inside_95"]) or c["other_effects"]:
             short.append(f"fixed {c['sensor']} {c['effect']}: named {c['named']}, inside {c.get('inside_95')}, other effects {c['other_effects'] or '-'}")
@@ -545,31 +568,40 @@ def scale_run(quick: bool) -> dict:
 
 
 def main(quick: bool, part: str = "all") -> None:
+    """Real-data section, run time at scale, simulation benchmark. ``quick`` (``make run``) writes
+    ``results/discrepancy_quick.{md,json}`` and ``discrepancy_quick_*`` figures, never the full report."""
+    stem = "discrepancy_quick" if quick else "discrepancy"
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "figures").mkdir(exist_ok=True)
-    js = RESULTS / "discrepancy.json"
-    cur = json.loads(js.read_text()) if js.exists() else {}
-    real = real_data(quick)
-    cur = json.loads(js.read_text()) if js.exists() else {}  # re-read: other parts may have written meanwhile
-    cur["real"] = real
-    js.write_text(json.dumps(cur, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
-    write_md_section(real_markdown(real), "real")
-    if part == "real":
-        return
-    sc = scale_run(quick)
-    cur["scale"] = sc
-    write_md_section(f"## Run time at scale\n\nOne diagnosis of a {sc['n_samples']}-sample simulated recording (both sensors, "
-                     f"all candidates) took {sc['wall_s']:.0f} s on 2 shared CPU cores; named: {', '.join(sc['named']) or 'nothing'}.\n", "scale")
-    res = run(quick)
-    cur["benchmark"] = res
-    js.write_text(json.dumps(cur, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
-    figure(res, RESULTS / "figures" / "discrepancy_detection.png")
-    write_md_section(markdown(res) + "\n![detection](figures/discrepancy_detection.png)\n", "benchmark")
+    js = RESULTS / f"{stem}.json"
+    dump = lambda d: js.write_text(json.dumps(d, indent=1, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))  # noqa: E731
+    if part in ("all", "real"):
+        real = real_data(quick, prefix=stem)
+        cur = json.loads(js.read_text()) if js.exists() else {}  # re-read: other parts may have written meanwhile
+        cur["real"] = real
+        dump(cur)
+        write_md_section(real_markdown(real), "real", stem)
+    if part in ("all", "scale"):
+        sc = scale_run(quick)
+        cur = json.loads(js.read_text()) if js.exists() else {}
+        cur["scale"] = sc
+        cur.pop("scale_full", None)  # key of an older layout
+        dump(cur)
+        write_md_section(f"## Run time at scale\n\nOne diagnosis of a {sc['n_samples']}-sample simulated recording (both sensors, "
+                         f"all candidates, joint refit) took {sc['wall_s']:.0f} s on 2 shared CPU cores (JAX compilation for the new "
+                         f"length included); named: {', '.join(sc['named']) or 'nothing'}.\n", "scale", stem)
+    if part in ("all", "benchmark"):
+        res = run(quick)
+        cur = json.loads(js.read_text()) if js.exists() else {}
+        cur["benchmark"] = res
+        dump(cur)
+        figure(res, RESULTS / "figures" / f"{stem}_detection.png")
+        write_md_section(markdown(res) + f"\n![detection](figures/{stem}_detection.png)\n", "benchmark", stem)
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--part", choices=("all", "real"), default="all", help="real: only the TUM-VI section")
+    ap.add_argument("--part", choices=("all", "real", "scale", "benchmark"), default="all", help="only one section of the report")
     a = ap.parse_args()
     main(a.quick, a.part)
