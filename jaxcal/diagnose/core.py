@@ -370,7 +370,10 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     path = heldout_rms_path(S, kind, s, order)
     if tau_lin != 0.0:
         # baseline held-out rms at zero time offset (the path starts at the linearisation point)
-        xb, zb = linearize_baseline(kind, sd, E.identity_beta(kind), np.zeros(E.N_THETA[s]))
+        # linearised at the zero-offset baseline fit: a random-walk noise model annihilates the bias
+        # columns, so starting from unit scale / zero bias would leave the whole bias in the residual
+        _, beta_z = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
+        xb, zb = linearize_baseline(kind, sd, beta_z, np.zeros(E.N_THETA[s]))
         Sb = build_system(xb, zb, ars, fit_rows, sd.block)
         path[0] = heldout_rms_path(Sb, kind, s, [])[0]
     theta0 = full[nb:] + theta_lin
