@@ -96,10 +96,10 @@ def _diagnose_all(batch, run_times: list) -> list[dict]:
 def run(quick: bool) -> dict:
     """The simulation benchmark; every group of seeds is simulated in one vmapped call
     (:func:`jaxcal.diagnose.simulate.simulate_batch`), then diagnosed one by one."""
-    n = 6000 if quick else 12000
-    seeds_main = 8 if quick else 20
-    seeds_other = 3 if quick else 6
-    seeds_null = 12 if quick else 40
+    n = 4000 if quick else 12000
+    seeds_main = 5 if quick else 20
+    seeds_other = 2 if quick else 6
+    seeds_null = 8 if quick else 40
     cfg = RichConfig(n=n)
     cfg_rw = cfg._replace(acc_rw_g_per_sqrt_s=1e-4, gyr_rw_rads_per_sqrt_s=3e-5)
     t_start = time.perf_counter()
