@@ -348,6 +348,13 @@ def imucal_fair(quick: bool) -> tuple[dict, dict]:
         f = jax.tree_util.tree_map(np.asarray, jax.jit(mp.fit_prepared, static_argnums=1)(d, mp.MultiposConfig(), None, None, kn))
     rows["IN-SAMPLE jaxcal multipos 9-param + known turns (all of every section)"] = _fair_row(
         [_fixed_errors(f.acc, f.gyr, all_d, known)], "IN-SAMPLE (whole faces, motions, turns)")
+    faces = plan["faces"]
+    segs = [(max(bounds[faces[j]][0], bounds[faces[j]][1] - 100), min(bounds[faces[j + 1]][1], bounds[faces[j + 1]][0] + 100))
+            for j in range(len(faces) - 1)]
+    ca, cg = _online_fit(rec["acc"], rec["gyr"], segs, 1 / 102.4, Diag(np.ones(3), np.zeros(3)),
+                         Diag(np.ones(3), np.asarray(all_d.pose_gyr).mean(0)), sig)
+    rows["IN-SAMPLE jaxcal online (all five face-to-face sequences)"] = _fair_row(
+        [_fixed_errors(ca, cg, all_d, known)], "IN-SAMPLE (its five sequences include the faces' ends and all motions)")
     info["sigma_acc_g"] = sig
     if have_imucal:
         dg = _fair_row(parts["diag"], "diagnostic")
@@ -642,6 +649,24 @@ def main(quick: bool) -> None:
     for name, e in mpu_info["independent_recordings"].items():
         md.append(f"| {name} | {e['static_test_norm_err_mg']:.2f} | {e['rot90x_gyro_rotation_deg']} | {e['rot90x_angle_deg']:.2f} | "
                   f"{e['rot90x_off_axis_deg']:.2f} | {e['rot90x_carried_gravity_err_deg']:.2f} |")
+    ind = mpu_info["independent_recordings"]
+    pri = next(v for k, v in mpu_rows.items() if "datasheet prior (MAP" in k)
+    pubr = next(v for k, v in mpu_rows.items() if k.startswith("published"))
+    ip = ind["jaxcal multipos 9-param + MPU-6050 datasheet prior (all poses)"]
+    md += ["", "Goal (issue 5): at least as good as the published calibration. With the datasheet prior, jaxcal multipos "
+           f"scores a held-out gyro median of {pri['gyr_median_deg']:.3f} deg against the published calibration's in-sample "
+           f"{pubr['gyr_median_deg']:.3f} deg (**{'met' if pri['gyr_median_deg'] <= pubr['gyr_median_deg'] else 'NOT met'}**); on "
+           f"rot90x its carried-gravity error is {ip['rot90x_carried_gravity_err_deg']:.2f} deg against "
+           f"{ind['published']['rot90x_carried_gravity_err_deg']:.2f} deg "
+           f"(**{'met' if ip['rot90x_carried_gravity_err_deg'] <= ind['published']['rot90x_carried_gravity_err_deg'] else 'NOT met'}**). "
+           f"Accelerometer: held out {pri['acc_mean_mg']:.3f} mg (without prior "
+           f"{mpu_rows['jaxcal multipos 9-param']['acc_mean_mg']:.3f} mg) against the published in-sample "
+           f"{pubr['acc_mean_mg']:.3f} mg (**{'met' if min(pri['acc_mean_mg'], mpu_rows['jaxcal multipos 9-param']['acc_mean_mg']) <= pubr['acc_mean_mg'] else 'NOT met'}**"
+           " held out; in-sample jaxcal is lower, see the IN-SAMPLE rows); static test "
+           f"{ip['static_test_norm_err_mg']:.2f} mg against {ind['published']['static_test_norm_err_mg']:.2f} mg "
+           f"(**{'met' if ip['static_test_norm_err_mg'] <= ind['published']['static_test_norm_err_mg'] else 'NOT met'}** for multipos + prior; "
+           f"jaxcal online {ind['jaxcal online (all unsaturated sequences)']['static_test_norm_err_mg']:.2f} mg). The saturated "
+           "transitions stay excluded: their unsaturated parts do not form a rotation between two known gravity directions."]
     md += ["", f"![errors](figures/{pre}_mpu6050_errors.png)", "",
            "## imucal Ferraris example (continuous session, physical units): both held out on one time split", "",
            f"Split: {im_info['split']}. imucal ({im_info.get('imucal')}) gets the calibration halves of the six faces and the "
@@ -662,11 +687,29 @@ def main(quick: bool) -> None:
         gyr_ok = ours["gyr_median_deg"] <= imc[0]["gyr_median_deg"]
         turn_ok = ours["turn_mean_deg"] <= imc[0]["turn_mean_deg"]
         md += ["", f"Goal (issue 5): on imucal's session jaxcal at least as good as imucal, held out for both: accelerometer "
-               f"**{'met' if acc_ok else 'NOT met'}** ({ours['acc_mean_mg']:.3f} vs {imc[0]['acc_mean_mg']:.3f} mg); gyro over the "
+               f"**{'met' if acc_ok else 'NOT met'}** (mean {ours['acc_mean_mg']:.4f} vs {imc[0]['acc_mean_mg']:.4f} mg; RMS "
+               f"{ours['acc_rms_mg']:.4f} vs {imc[0]['acc_rms_mg']:.4f} mg); gyro over the "
                f"motions between faces **{'met' if gyr_ok else 'NOT met'}** (median {ours['gyr_median_deg']:.3f} vs "
                f"{imc[0]['gyr_median_deg']:.3f} deg); gyro over the 360 deg turns **{'met' if turn_ok else 'NOT met'}** "
                f"(jaxcal held out {ours['turn_mean_deg']:.3f} deg vs imucal in-sample {imc[0]['turn_mean_deg']:.3f} deg, which "
-               "is zero by construction apart from its bias handling)."]
+               "is zero by construction apart from its bias handling).",
+               "", "Why the gyro falls short: the six faces are axis-aligned, so | |f| - 1 g | cannot see the accelerometer's "
+               "three non-orthogonality terms; imucal takes them from the face labels (which face is +x), jaxcal's "
+               "label-free fit leaves them at zero, and the gravity directions it carries between faces are off by about "
+               "a degree. Diagnostic (same folds): imucal's own gyro scored with jaxcal's accelerometer frame gives a "
+               f"transition median of {im_info['diagnostic_imucal_gyro_with_jaxcal_acc_frame']['transition_median_deg']:.3f} deg "
+               f"instead of {imc[0]['gyr_median_deg']:.3f} deg, "
+               f"{(im_info['diagnostic_imucal_gyro_with_jaxcal_acc_frame']['transition_median_deg'] - imc[0]['gyr_median_deg']) / max(ours['gyr_median_deg'] - imc[0]['gyr_median_deg'], 1e-12):.0%} "
+               "of the gap. The rest is the gyro fit itself: with "
+               "one transition left out it has four motions and three closed turns for nine parameters. The known-turn "
+               f"rows are what make the jaxcal gyro usable at all here (without them "
+               f"{im_rows['jaxcal multipos 9-param (no turn labels)']['gyr_median_deg']:.1f} deg, the 'no turn labels' row): a "
+               "closed turn about the vertical is invisible to gravity carrying.",
+               "", "jaxcal `online` cannot be supported by this session: it has only five face-to-face motions, made by "
+               "hand, so the sequences are few and their samples carry linear acceleration that its model (every sample = "
+               "gravity carried by the gyro) does not have; even fitted on all five sequences and scored in-sample it reaches "
+               f"{im_rows['IN-SAMPLE jaxcal online (all five face-to-face sequences)']['acc_mean_mg']:.1f} mg against the nominal "
+               f"conversion's {im_rows[next(k for k in im_rows if k.startswith('nominal'))]['acc_mean_mg']:.1f} mg."]
     md += ["", "imucal's stored snapshot on its own annotated session: "
            f"{snap['example_cal.json on its six faces (in-sample), mean | |f| - 1 g | mg']:.3f} mg mean over the six faces "
            f"(in-sample). multipos: {snap['multipos']}.", "",
@@ -690,6 +733,15 @@ def main(quick: bool) -> None:
                 worse.append(f"- {rname}: **{k}** has a lower accelerometer error ({v['acc_mean_mg']:.3f} mg, scored on {v['scored']}) than every held-out jaxcal row (best {best_acc:.3f} mg).")
             if best_gyr is not None and v["gyr_median_deg"] is not None and v["gyr_median_deg"] < best_gyr:
                 worse.append(f"- {rname}: **{k}** has a lower gyro median error ({v['gyr_median_deg']:.3f} deg, scored on {v['scored']}) than every held-out jaxcal row (best {best_gyr:.3f} deg).")
+    ind = mpu_info["independent_recordings"]
+    ours_ind = {k: v for k, v in ind.items() if k.startswith("jaxcal")}
+    for metric, label, unit in (("static_test_norm_err_mg", "static-test |f| error", "mg"),
+                                ("rot90x_carried_gravity_err_deg", "rot90x carried-gravity error", "deg")):
+        best_k = min(ours_ind, key=lambda k: ours_ind[k][metric])
+        for k, v in ind.items():
+            if not k.startswith("jaxcal") and v[metric] < ours_ind[best_k][metric]:
+                worse.append(f"- tomisuarez_mpu6050 independent recordings: **{k}** has a lower {label} ({v[metric]:.2f} {unit}) "
+                             f"than every jaxcal calibration (best {best_k}: {ours_ind[best_k][metric]:.2f} {unit}).")
     md += worse or ["- none"]
     md += ["", "## Notes", "",
            "- The imu_tk-style row is jaxcal's own re-implementation of imu_tk's choices (9 parameters, gyro "
