@@ -116,3 +116,24 @@ def test_tumvi_concealed_lever_arm_recovered():
     est0 = np.zeros(3) if est0 is None else est0
     se0 = np.zeros(3) if se0 is None else se0
     assert np.all(np.abs(est - est0 - r) < 3 * np.hypot(se, se0)), (est - est0, se, se0)
+
+
+def test_attenuation_matches_known_regression_dilution():
+    """Regressor = truth + reference noise; the same regressor on the measured signal has its own,
+    independent noise. The estimated attenuation is var(truth) / (var(truth) + var(ref noise))."""
+    from jaxcal.diagnose.select import attenuation
+
+    rng = np.random.default_rng(2)
+    n = 20000
+    truth = rng.standard_normal((n, 3))
+    x_ref = np.zeros((n, 3, 2))
+    x_meas = np.zeros((n, 3, 2))
+    x_ref[:, :, 0] = x_meas[:, :, 0] = 1.0  # a bias column (baseline)
+    x_ref[:, :, 1] = truth + 1.5 * rng.standard_normal((n, 3))  # a = 1 / (1 + 1.5^2) = 0.308
+    x_meas[:, :, 1] = truth + 0.7 * rng.standard_normal((n, 3))
+    ars = [WHITE] * 3
+    a = attenuation(x_ref, x_meas, ars, np.ones(n, bool), [0], [1])
+    np.testing.assert_allclose(a, [1 / (1 + 1.5**2)], rtol=0.05)
+    # an exact reference is not attenuated
+    a1 = attenuation(x_meas, x_meas, ars, np.ones(n, bool), [0], [1])
+    np.testing.assert_allclose(a1, [1.0], rtol=1e-9)

@@ -21,7 +21,7 @@ from typing import Any
 
 import jax
 
-from jaxcal.diagnose.core import prepare, diagnose_sensor
+from jaxcal.diagnose.core import diagnose_sensor, measured_inputs, prepare
 from jaxcal.diagnose.select import SelectConfig, candidates
 from jaxcal.diagnose.report import build_report, figures as make_figures, report_markdown, write_report
 
@@ -63,7 +63,7 @@ def diagnose_recording(
     if not prep.sensors:
         raise ValueError("no sensor with a matching reference to diagnose")
     n_tests = sum(len(candidates(baseline, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
-    results = {s: diagnose_sensor(baseline, sd, config, n_tests) for s, sd in prep.sensors.items()}
+    results = {s: diagnose_sensor(baseline, sd, config, n_tests, meas=measured_inputs(prep, s)) for s, sd in prep.sensors.items()}
     rep = build_report(prep, results, baseline, time.perf_counter() - t0)
     build_figs = (out_dir is not None) if with_figures is None else with_figures
     figs = make_figures(prep, results) if build_figs else None

@@ -20,6 +20,7 @@ from jaxcal.diagnose.refit import RefitResult, refit
 from jaxcal.diagnose.select import (
     SelectConfig,
     SensorData,
+    attenuation,
     build_system,
     candidates,
     canonical_correlation,
@@ -61,6 +62,7 @@ class Prepared(NamedTuple):
     temp: np.ndarray | None
     dt: float
     notes: list[str]
+    from_pose: bool = False  # reference derived from a (noisy) pose: regressors carry its noise
 
 
 def _get(rec: Any, k: str):
@@ -176,7 +178,19 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
         is_counts = (not smoothed) and str(_get(rec, f"{s}_unit") or "LSB") == "LSB"
         inp = E.Inputs(f, w, wdot, tc, dT, np.asarray(dt))
         out[s] = SensorData(s, y, raw[s] if is_counts else None, sc, bi, inp, valid.copy(), block, temp is not None)
-    return Prepared(out, t, temp, dt, notes)
+    return Prepared(out, t, temp, dt, notes, smoothed)
+
+
+def measured_inputs(prep: Prepared, s: str) -> E.Inputs | None:
+    """The reference inputs of sensor ``s`` with the motion replaced by the sensors' own outputs
+    (acc for ``f``, gyro for ``w`` and, differentiated, ``wdot``); for the errors-in-variables
+    attenuation of pose-derived references (:func:`jaxcal.diagnose.select.attenuation`). None when
+    the reference is not pose-derived or a sensor is missing."""
+    if not prep.from_pose or "acc" not in prep.sensors or "gyr" not in prep.sensors:
+        return None
+    inp = prep.sensors[s].inp
+    w = np.asarray(prep.sensors["gyr"].y)
+    return inp._replace(f=np.asarray(prep.sensors["acc"].y), w=w, wdot=K.derivative5(w, prep.dt))
 
 
 class SensorResult(NamedTuple):
@@ -243,7 +257,8 @@ def _refine_tau(kind: str, sd: SensorData, tau_c: float, ars, rows: np.ndarray, 
     return float(tau_c + (ks[i] + 0.5 * np.clip(off, -1.0, 1.0)) * dt)
 
 
-def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, _relin: tuple | None = None) -> SensorResult:
+def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, _relin: tuple | None = None,
+                    meas: E.Inputs | None = None) -> SensorResult:
     """Locate-name-refit for one sensor; ``n_tests`` is the Bonferroni count of the recording.
 
     When a time offset is named, the selection is repeated once with the model relinearised at the
@@ -339,12 +354,25 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     # detectability and confounding, relative to the baseline
     base = list(range(nb))
     mds = {}
+    x_meas = None if meas is None else linearize(kind, sd._replace(inp=meas), beta, theta_lin)[0]
     for c in cands:
         F = projected_information(S, base, group_columns(kind, s, c))
+        att = None
+        if x_meas is not None:
+            att = attenuation(x, x_meas, ars, fit_rows, base, group_columns(kind, s, c))
+            F = F * att[:, None] * att[None, :]
+            if float(att.min()) < 0.7:
+                warnings.append(
+                    f"{s} {c}: its regressor comes from the pose-derived reference, whose noise dilutes it (attenuation "
+                    f"{float(att.min()):.2f}-{float(att.max()):.2f}); detectable sizes are scaled by 1/attenuation (the joint "
+                    "refit, run to convergence, is not diluted)"
+                )
         comp, worst = minimum_detectable(F, level, cfg.power)
         mds[c] = {"components": comp.tolist(), "worst": worst, "min": float(comp.min()), "fisher": F.tolist(),
                   "lambda_star": detectable_noncentrality(level, F.shape[0], cfg.power)}
-        if c in E.PLAUSIBLE and float(np.median(comp)) > E.PLAUSIBLE[(c, s)]:
+        if att is not None:
+            mds[c]["attenuation"] = att.tolist()
+        if (c, s) in E.PLAUSIBLE and float(np.median(comp)) > E.PLAUSIBLE[(c, s)]:
             warnings.append(
                 f"{s} {c}: not excited - smallest detectable size {float(np.median(comp)):.3g} {E.UNITS[(c, s)]} "
                 f"exceeds a plausible {E.PLAUSIBLE[(c, s)]:.3g}; needs {EXCITE[c]}"
@@ -391,7 +419,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             from jaxcal.diagnose.select import Decision
 
             d0 = decisions["time_offset"]
-            return diagnose_sensor(kind, sd, cfg, n_tests, (tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0)))
+            return diagnose_sensor(kind, sd, cfg, n_tests, (tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0)), meas)
     return SensorResult(
         s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars],
     )
