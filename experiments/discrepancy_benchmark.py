@@ -47,7 +47,8 @@ def _inject(rng: np.random.Generator, rep0: dict, rec0: dict, sensor: str, name:
     """Effect dict / saturation dict concealing ``name`` at ``m`` x its MDS (from the null report)."""
     md = rep0["sensors"][sensor]["mds"][name]
     if name == "saturation":
-        peak = float(np.max(np.abs(rec0[sensor])))
+        # the depth is below the model's noiseless peak (the observed peak sits a few noise sd above it)
+        peak = float(md.get("predicted_peak_lsb", np.max(np.abs(rec0[sensor]))))
         lim = float(np.floor(peak - m * md["depth_lsb"]))
         return {}, {sensor: lim}, np.array([lim])
     F = np.asarray(md["fisher"])

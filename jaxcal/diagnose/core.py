@@ -323,8 +323,10 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         ars = ars_fixed
         if plateau is not None and it == 0:
             lim, pmask = plateau
-            pred = sd.y - resid
-            st = saturation_stat(sd, pred, resid, ars, fit_rows , lim)
+            # predict the plateau from a baseline fitted without it: clipped samples pull a fit that
+            # includes them towards the limit and hide the clipping they are evidence of
+            r_np, _ = _baseline_resid(kind, sd, theta_lin, fit_rows & ~pmask)
+            st = saturation_stat(sd, sd.y - r_np, r_np, ars, fit_rows, lim)
             from scipy import stats as _st
 
             lp = float(_st.chi2.logsf(max(st, 0.0), 1) / np.log(10))
@@ -379,7 +381,8 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             )
     if sat_info is not None or sd.raw is not None:
         pred = sd.y - resid
-        mds["saturation"] = {"depth_lsb": saturation_mds(sd, pred, ars, fit_rows , level, cfg.power)}
+        mds["saturation"] = {"depth_lsb": saturation_mds(sd, pred, ars, fit_rows, level, cfg.power),
+                             "predicted_peak_lsb": float(np.max(np.abs((pred * sd.spec_scale + sd.spec_bias)[fit_rows])))}
     confounded: dict[str, list[str]] = {}
     for i, a in enumerate(cands):
         for b in cands[i + 1 :]:
