@@ -4,10 +4,13 @@ Sensor noise is rarely white (bias random walk, flicker, vibration). Least-squar
 assume i.i.d. noise then call slow regressors (drift, temperature) significant far too often.
 Each axis's residual is modelled in two stages:
 
-1. a bias random walk under white noise (local-level model), whose innovations form an IMA(1,1)
-   process: ``(1 - L) e_t = (1 - th L) v_t``. ``th`` (1 = no random walk) is chosen by
-   conditional least squares on a grid plus BIC; the filter ``(1 - L) / (1 - th L)`` (with the
-   first difference started at zero) removes the random walk;
+1. a bias random walk under white noise (local-level model, random-walk to white variance ratio
+   ``lam`` per sample; ``lam = 0``: none). The exact innovations of its Kalman filter with a
+   diffuse initial level (:func:`ll_innovations`) whiten it; their steady state is the IMA(1,1)
+   ``(1 - L) e_t = (1 - theta L) v_t``. ``lam`` is chosen by restricted maximum likelihood
+   (:func:`reml_profile`) with the regressors that will be tested, pooled over the axes of a sensor
+   and taken at the upper end of its profile interval (:func:`choose_lambda`): a short recording
+   cannot tell a slow effect from a random walk, and tests must not assume it can;
 2. AR(p) on what is left, ``v_t = sum_k a_k v_{t-k} + u_t``, order by BIC up to ``max_order``.
 
 Applying both filters and dividing by ``sd(u)`` to the residual and to every regressor turns
@@ -27,12 +30,10 @@ from scipy.signal import lfilter
 ORDERS = (0, 1, 2, 4, 8, 16, 32, 64)
 
 
-THETAS = (1.0, 0.9995, 0.999, 0.998, 0.995, 0.99, 0.98, 0.95, 0.9, 0.8)
-
-
 class ARModel(NamedTuple):
     """Per-axis noise filter: ``a`` (p,) AR coefficients, ``sigma`` innovation sd, ``order`` p,
-    ``theta`` IMA coefficient (1.0: no random walk), ``memory`` samples a gap contaminates."""
+    ``theta`` steady-state IMA coefficient (1.0: no random walk), ``memory`` samples a gap
+    contaminates, ``lam`` random-walk to white variance ratio per sample (0: none)."""
 
     a: np.ndarray
     sigma: float
@@ -40,14 +41,6 @@ class ARModel(NamedTuple):
     theta: float = 1.0
     memory: int = 0
     lam: float = 0.0
-
-
-def _ima(x: np.ndarray, theta: float) -> np.ndarray:
-    """``(1 - L) / (1 - theta L)`` along axis 0, first difference started at zero."""
-    if theta >= 1.0:
-        return x
-    d = np.diff(x, axis=0, prepend=x[:1])
-    return lfilter([1.0], [1.0, -theta], d, axis=0)
 
 
 def _ima_memory(theta: float) -> int:
