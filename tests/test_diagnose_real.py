@@ -137,3 +137,27 @@ def test_attenuation_matches_known_regression_dilution():
     # an exact reference is not attenuated
     a1 = attenuation(x_meas, x_meas, ars, np.ones(n, bool), [0], [1])
     np.testing.assert_allclose(a1, [1.0], rtol=1e-9)
+
+
+def test_block_score_inflation_is_one_for_white_noise_and_large_for_block_varying_misfit():
+    """Scores of a regressor against white noise vary across blocks as the model says (factor ~1);
+    a misfit whose sign flips from block to block shows as a factor well above 1."""
+    from jaxcal.diagnose.select import System, block_score_inflation
+
+    rng = np.random.default_rng(7)
+    n, kb = 16000, 8
+    blk = np.minimum(np.arange(n) * kb // n, kb - 1)
+    x = np.stack([np.ones(n), rng.standard_normal(n)], 1)
+
+    def system(e):
+        G = np.stack([x[blk == k].T @ x[blk == k] for k in range(kb)])
+        g = np.stack([x[blk == k].T @ e[blk == k] for k in range(kb)])
+        return System(G, g, np.zeros(kb), G, g, np.zeros(kb), np.zeros(kb))
+
+    white = rng.standard_normal(n)
+    th = np.array([white.mean()])
+    f_white = block_score_inflation(system(white), [0], [1], [0], th)
+    assert f_white[0] < 1.8
+    flip = white + 0.2 * x[:, 1] * np.where(blk % 2 == 0, 1.0, -1.0)  # effect present, sign alternating by block
+    f_flip = block_score_inflation(system(flip), [0], [1], [0], np.array([flip.mean()]))
+    assert f_flip[0] > 3.0

@@ -21,6 +21,7 @@ from jaxcal.diagnose.select import (
     SelectConfig,
     SensorData,
     attenuation,
+    block_score_inflation,
     build_system,
     candidates,
     canonical_correlation,
@@ -357,12 +358,20 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     base = list(range(nb))
     mds = {}
     x_meas = None if meas is None else linearize(kind, sd._replace(inp=meas), beta, theta_lin)[0]
+    mds_infl: dict[str, np.ndarray] = {}
     for c in cands:
         F = projected_information(S, base, group_columns(kind, s, c))
         att = None
         if x_meas is not None:
             att = attenuation(x, x_meas, ars, fit_rows, base, group_columns(kind, s, c))
-            F = F * att[:, None] * att[None, :]
+            infl = block_score_inflation(S, base, group_columns(kind, s, c), cols, th)
+            F = F * (att / infl)[:, None] * (att / infl)[None, :]
+            mds_infl[c] = infl
+            if float(infl.max()) > 1.5:
+                warnings.append(
+                    f"{s} {c}: its score varies between time blocks {float(infl.max()):.1f}x more than the noise model allows "
+                    "(real-data misspecification); detectable sizes are scaled by this block-robust factor"
+                )
             if float(att.min()) < 0.7:
                 warnings.append(
                     f"{s} {c}: its regressor comes from the pose-derived reference, whose noise dilutes it (attenuation "
@@ -374,6 +383,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
                   "lambda_star": detectable_noncentrality(level, F.shape[0], cfg.power)}
         if att is not None:
             mds[c]["attenuation"] = att.tolist()
+            mds[c]["block_inflation"] = mds_infl[c].tolist()
         if (c, s) in E.PLAUSIBLE and float(np.median(comp)) > E.PLAUSIBLE[(c, s)]:
             warnings.append(
                 f"{s} {c}: not excited - smallest detectable size {float(np.median(comp)):.3g} {E.UNITS[(c, s)]} "

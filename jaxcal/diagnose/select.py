@@ -251,6 +251,29 @@ def attenuation(x_ref: np.ndarray, x_meas: np.ndarray, ars: list[ARModel], rows:
     return np.clip(np.sqrt(np.clip(np.diag(feff), 0.0, None) / d), 0.05, 1.0)
 
 
+def block_score_inflation(S: System, base: list[int], cols: list[int], cur: list[int], th: np.ndarray) -> np.ndarray:
+    """Per component of ``cols``: sqrt(block-robust / model-based variance of its score), at least 1.
+
+    The score of a candidate at the current fit (columns ``cur``, solution ``th``) is
+    ``X_c^T r`` with the baseline projected out; its model-based variance is the Fisher information.
+    Summed block by block (the cross-validation blocks), its spread across blocks estimates the
+    variance the data really show (cluster-robust), which misspecification on real data (reference
+    errors, unmodelled colour) makes larger. With ``K`` blocks the ratio has about ``K - 1``
+    degrees of freedom: a coarse, conservative factor for detectable sizes, not a test.
+    """
+    G, g = S.G, S.g
+    sc = g[:, cols] - G[:, cols][:, :, cur] @ th
+    sb = g[:, base] - G[:, base][:, :, cur] @ th
+    Ga = S.G_all
+    proj = np.linalg.lstsq(Ga[np.ix_(base, base)], Ga[np.ix_(base, cols)], rcond=None)[0]
+    sv = sc - sb @ proj
+    k = sv.shape[0]
+    sv = sv - sv.mean(0)
+    v = np.sum(sv * sv, 0) * k / max(k - 1, 1)
+    f = np.clip(np.diag(projected_information(S, base, cols)), 1e-300, None)
+    return np.sqrt(np.clip(v / f, 1.0, None))
+
+
 @lru_cache(maxsize=None)
 def critical_value(level: float, dof: int) -> float:
     """Chi-square critical value at ``level``."""
