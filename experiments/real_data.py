@@ -44,14 +44,7 @@ G0 = 9.80665
 
 def _score_fixed(acc: mp.InverseAffine, gyr: mp.InverseAffine, data: mp.MultiposData) -> dict:
     """Scores of a calibration fixed in advance (nothing fitted on this recording)."""
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        a = jax.tree_util.tree_map(jnp.asarray, acc)
-        g = jax.tree_util.tree_map(jnp.asarray, gyr)
-        ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
-        eg = np.asarray(mp.gyro_angle_errors(g, jnp.zeros((3, 3)), a, d))
-    eg = np.where(np.asarray(data.seg_ok), eg, np.nan)
-    return _summary(ea, eg, "all poses (nothing fitted)")
+    return _summary(*_score_cal(acc, gyr, data), "all poses (nothing fitted)")
 
 
 def _summary(ea: np.ndarray, eg: np.ndarray, scored: str) -> dict:
@@ -120,7 +113,8 @@ def _online_fit(acc, gyr, segments, dt, aspec: Diag, gspec: Diag, sigma_acc: flo
     return _inverse(am), _inverse(gm)
 
 
-def _score_cal(acc: mp.InverseAffine, gyr: mp.InverseAffine, data: mp.MultiposData):
+def _score_cal(acc: mp.InverseAffine, gyr: mp.InverseAffine, data: mp.MultiposData) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pose |f| errors and per-transition carried-gravity angles (NaN where unusable) of a given calibration."""
     with jax.enable_x64(True):
         d = jax.tree_util.tree_map(jnp.asarray, data)
         a = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), acc)
