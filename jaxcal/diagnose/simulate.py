@@ -109,6 +109,27 @@ def _sensor_raw(key, cfg: RichConfig, sensor: str, theta, inp: E.Inputs):
     return s * (u + noise + walk) + b, s, b
 
 
+def _assemble(cfg: RichConfig, inp: E.Inputs, temp, sensors: dict, saturation: dict) -> tuple[dict, dict]:
+    """Recording dict and truth of one simulated recording from its motion and, per sensor,
+    ``(raw, scale, bias, theta)`` (raw unrounded): LSB rounding, then optional clipping."""
+    rec = {"t": np.arange(cfg.n) / cfg.fs, "fs": cfg.fs, "acc_ref": np.asarray(inp.f), "gyr_ref": np.asarray(inp.w),
+           "acc_lsb_per_g": cfg.acc_lsb_per_g, "gyr_lsb_per_rads": cfg.gyr_lsb_per_rads,
+           "acc_bias_lsb": 0.0, "gyr_bias_lsb": 0.0}
+    if cfg.temp_profile != "none":
+        rec["temp"] = np.asarray(temp)
+    truth: dict = {"theta": {}, "scale": {}, "bias": {}, "wdot": np.asarray(inp.wdot)}
+    for sensor, (raw, sc, b, theta) in sensors.items():
+        raw = np.round(np.asarray(raw, np.float64))
+        if sensor in saturation:
+            lim = float(saturation[sensor])
+            raw = np.clip(raw, -lim, lim)
+        rec[sensor] = raw
+        truth["theta"][sensor] = theta
+        truth["scale"][sensor] = np.asarray(sc)
+        truth["bias"][sensor] = np.asarray(b)
+    return rec, truth
+
+
 def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = None, saturation: dict | None = None) -> tuple[dict, dict]:
     """One recording (dict, CONVENTIONS.md keys; raw in LSB) and its hidden truth.
 
@@ -119,28 +140,13 @@ def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = N
         saturation: ``{sensor: limit_lsb}``.
     """
     effects = effects or {}
-    saturation = saturation or {}
     km, ka, kg = jax.random.split(key, 3)
     inp, temp = motion(km, cfg)
-    rec = {"t": np.arange(cfg.n) / cfg.fs, "fs": cfg.fs, "acc_ref": np.asarray(inp.f), "gyr_ref": np.asarray(inp.w),
-           "acc_lsb_per_g": cfg.acc_lsb_per_g, "gyr_lsb_per_rads": cfg.gyr_lsb_per_rads,
-           "acc_bias_lsb": 0.0, "gyr_bias_lsb": 0.0}
-    if cfg.temp_profile != "none":
-        rec["temp"] = np.asarray(temp)
-    truth: dict = {"theta": {}, "scale": {}, "bias": {}, "wdot": np.asarray(inp.wdot)}
+    sensors = {}
     for sensor, k in (("acc", ka), ("gyr", kg)):
-        params = {name: p for (s, name), p in effects.items() if s == sensor}
-        theta = E.theta_from_params(sensor, params)
-        raw, s, b = _sensor_raw(k, cfg, sensor, jnp.asarray(theta, jnp.float32), inp)
-        raw = np.round(np.asarray(raw, np.float64))
-        if sensor in saturation:
-            lim = float(saturation[sensor])
-            raw = np.clip(raw, -lim, lim)
-        rec[sensor] = raw
-        truth["theta"][sensor] = theta
-        truth["scale"][sensor] = np.asarray(s)
-        truth["bias"][sensor] = np.asarray(b)
-    return rec, truth
+        theta = E.theta_from_params(sensor, {name: p for (s, name), p in effects.items() if s == sensor})
+        sensors[sensor] = (*_sensor_raw(k, cfg, sensor, jnp.asarray(theta, jnp.float32), inp), theta)
+    return _assemble(cfg, inp, temp, sensors, saturation or {})
 
 
 def simulate_batch(keys: jax.Array, cfg: RichConfig, thetas: dict[str, np.ndarray] | None = None,
@@ -164,29 +170,10 @@ def simulate_batch(keys: jax.Array, cfg: RichConfig, thetas: dict[str, np.ndarra
     saturation = saturation or [{}] * n_rec
     ks = jax.vmap(lambda k: jax.random.split(k, 3))(keys)
     inp, temp = jax.vmap(lambda k: motion(k, cfg))(ks[:, 0])
-    out_raw = {}
-    th_all = {}
+    out = {}
     for j, sensor in ((1, "acc"), (2, "gyr")):
         th = np.zeros((n_rec, E.N_THETA[sensor])) if sensor not in thetas else np.asarray(thetas[sensor], np.float64)
-        th_all[sensor] = th
-        out_raw[sensor] = jax.vmap(lambda k, t, i: _sensor_raw(k, cfg, sensor, t, i))(ks[:, j], jnp.asarray(th, jnp.float32), inp)
-    res = []
-    for r in range(n_rec):
-        rec = {"t": np.arange(cfg.n) / cfg.fs, "fs": cfg.fs, "acc_ref": np.asarray(inp.f[r]), "gyr_ref": np.asarray(inp.w[r]),
-               "acc_lsb_per_g": cfg.acc_lsb_per_g, "gyr_lsb_per_rads": cfg.gyr_lsb_per_rads,
-               "acc_bias_lsb": 0.0, "gyr_bias_lsb": 0.0}
-        if cfg.temp_profile != "none":
-            rec["temp"] = np.asarray(temp[r])
-        truth: dict = {"theta": {}, "scale": {}, "bias": {}, "wdot": np.asarray(inp.wdot[r])}
-        for sensor in ("acc", "gyr"):
-            raw, s, b = (np.asarray(a[r]) for a in out_raw[sensor])
-            raw = np.round(raw.astype(np.float64))
-            if sensor in saturation[r]:
-                lim = float(saturation[r][sensor])
-                raw = np.clip(raw, -lim, lim)
-            rec[sensor] = raw
-            truth["theta"][sensor] = th_all[sensor][r]
-            truth["scale"][sensor] = s
-            truth["bias"][sensor] = b
-        res.append((rec, truth))
-    return res
+        raw = jax.vmap(lambda k, t, i: _sensor_raw(k, cfg, sensor, t, i))(ks[:, j], jnp.asarray(th, jnp.float32), inp)
+        out[sensor] = (*(np.asarray(a) for a in raw), th)
+    return [_assemble(cfg, jax.tree_util.tree_map(lambda a: a[r], inp), temp[r],
+                      {s: tuple(a[r] for a in v) for s, v in out.items()}, saturation[r]) for r in range(n_rec)]
