@@ -57,6 +57,27 @@ def _lag_matrix(e: np.ndarray, p: int) -> np.ndarray:
     return out
 
 
+def _ar_by_bic(u: np.ndarray, rows: np.ndarray, orders: list[int]) -> tuple[np.ndarray, float, int]:
+    """AR coefficients of ``u`` fitted on ``rows`` by least squares, order by BIC over ``orders``;
+    returns ``(a (p,), residual sum of squares, p)``."""
+    lag = _lag_matrix(u, orders[-1])[rows]
+    y = u[rows]
+    n = len(y)
+    gram, rhs, yy = lag.T @ lag, lag.T @ y, float(y @ y)
+    best = None
+    for p in orders:
+        if p == 0:
+            a, rss = np.zeros(0), yy
+        else:
+            a = np.linalg.lstsq(gram[:p, :p] + (1e-12 * np.trace(gram[:p, :p]) / p + 1e-300) * np.eye(p), rhs[:p], rcond=None)[0]
+            rss = yy - 2 * a @ rhs[:p] + a @ gram[:p, :p] @ a
+        rss = max(rss, 1e-300)
+        bic = n * np.log(rss / n) + p * np.log(n)
+        if best is None or bic < best[0]:
+            best = (bic, a, rss, p)
+    return best[1], float(best[2]), int(best[3])
+
+
 def row_ok(valid: np.ndarray, p: int) -> np.ndarray:
     """True at samples ``t`` whose whole filter window ``t-p .. t`` is valid."""
     c = np.concatenate([[0], np.cumsum(~np.asarray(valid, bool))])
@@ -92,6 +113,11 @@ def gap_ok(valid: np.ndarray, memory: int) -> np.ndarray:
 LAMBDAS = (0.0,) + tuple(float(x) for x in 10.0 ** np.arange(-11.0, -1.99, 0.5))
 
 
+def _p_inf(lam: float) -> float:
+    """Steady-state predicted level variance (units of the white variance) of the local-level model."""
+    return 0.5 * (lam + np.sqrt(lam * lam + 4.0 * lam))
+
+
 @lru_cache(maxsize=256)
 def local_level_gains(lam: float, n: int) -> tuple[np.ndarray, np.ndarray]:
     """Kalman gains ``K`` (n,) and innovation sd factors ``sf`` (n,) of the local-level model
@@ -109,7 +135,7 @@ def local_level_gains(lam: float, n: int) -> tuple[np.ndarray, np.ndarray]:
         K[1:] = 1.0 / (t + 1.0)
         F[1:] = 1.0 + 1.0 / t
         return K, np.sqrt(F)
-    p_inf = 0.5 * (lam + np.sqrt(lam * lam + 4.0 * lam))
+    p_inf = _p_inf(lam)
     P = 1.0 + lam
     for t in range(1, n):
         F[t] = P + 1.0
@@ -196,7 +222,7 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
     orders = [p for p in ORDERS if p <= max_order]
     prof = np.full(len(lams), -np.inf)
     for j, lam in enumerate(lams):
-        K, sf = local_level_gains(float(lam), n)
+        _, sf = local_level_gains(float(lam), n)
         ew = ll_innovations(ev, lam)
         Xw = ll_innovations(Xv, lam) if Xv.shape[1] else Xv
         # GLS residual under the random-walk stage alone, then its AR order
@@ -205,20 +231,8 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
             u = ew - Xw @ b
         else:
             u = ew
-        lag = _lag_matrix(u, orders[-1])[rows]
-        y = u[rows]
-        gram, rhs, yy = lag.T @ lag, lag.T @ y, float(y @ y)
-        pb = None
-        for p in orders:
-            if p == 0:
-                a, r_ = np.zeros(0), yy
-            else:
-                a = np.linalg.solve(gram[:p, :p] + 1e-12 * np.trace(gram[:p, :p]) / p * np.eye(p), rhs[:p])
-                r_ = yy - 2 * a @ rhs[:p] + a @ gram[:p, :p] @ a
-            bic = len(y) * np.log(max(r_, 1e-300) / len(y)) + p * np.log(len(y))
-            if pb is None or bic < pb[0]:
-                pb = (bic, a)
-        taps = np.concatenate([[1.0], -pb[1]])
+        a_ar, _, _ = _ar_by_bic(u, rows, orders)
+        taps = np.concatenate([[1.0], -a_ar])
         e2 = lfilter(taps, 1.0, ew)[rows]
         X2 = lfilter(taps, 1.0, Xw, axis=0)[rows] if Xw.shape[1] else np.zeros((int(rows.sum()), 0))
         if X2.shape[1]:
@@ -228,7 +242,7 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
             rss2 = float(e2 @ e2)
         ld, k = _logdet_gram(X2) if X2.shape[1] else (0.0, 0)
         m = len(e2)
-        ll = -0.5 * ((m - k) * np.log(max(rss2, 1e-300) / (m - k)) + 2.0 * np.sum(np.log(sf[rows])) + ld + len(pb[1]) * np.log(m))
+        ll = -0.5 * ((m - k) * np.log(max(rss2, 1e-300) / (m - k)) + 2.0 * np.sum(np.log(sf[rows])) + ld + len(a_ar) * np.log(m))
         prof[j] = ll
     return prof
 
@@ -237,7 +251,7 @@ def theta_of(lam: float) -> float:
     """IMA(1,1) coefficient ``1 - K_inf`` of the local-level model with ratio ``lam`` (1 for 0)."""
     if lam <= 0:
         return 1.0
-    p = 0.5 * (lam + np.sqrt(lam * lam + 4.0 * lam))
+    p = _p_inf(lam)
     return float(1.0 - p / (p + 1.0))
 
 
@@ -286,27 +300,11 @@ def fit_ar(e: np.ndarray, valid: np.ndarray, max_order: int = 64, X: np.ndarray 
     orders = [p for p in ORDERS if p <= max_order]
     pmax = orders[-1]
     rows = gap_ok(valid, pmax)
-    lag = _lag_matrix(e, pmax)[rows]
-    y = e[rows]
-    n = len(y)
+    n = int(rows.sum())
     if n < 4 * pmax + 10:
         return ARModel(np.zeros(0), float(np.std(e[valid]) + 1e-30), 0, theta, mem, lam)
-    gram = lag.T @ lag
-    rhs = lag.T @ y
-    yy = float(y @ y)
-    best = None
-    for p in orders:
-        if p == 0:
-            a = np.zeros(0)
-            rss = yy
-        else:
-            a = np.linalg.lstsq(gram[:p, :p] + (1e-12 * np.trace(gram[:p, :p]) / p + 1e-300) * np.eye(p), rhs[:p], rcond=None)[0]
-            rss = yy - 2 * a @ rhs[:p] + a @ gram[:p, :p] @ a
-        rss = max(rss, 1e-300)
-        bic = n * np.log(rss / n) + p * np.log(n)
-        if best is None or bic < best[0]:
-            best = (bic, a, np.sqrt(rss / max(n - p, 1)), p)
-    return ARModel(best[1], float(best[2]), int(best[3]), theta, mem + int(best[3]), lam)
+    a, rss, p = _ar_by_bic(e, rows, orders)
+    return ARModel(a, float(np.sqrt(rss / max(n - p, 1))), p, theta, mem + p, lam)
 
 
 def _stage1(x: np.ndarray, lam: float) -> np.ndarray:
