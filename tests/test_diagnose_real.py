@@ -121,7 +121,7 @@ def test_tumvi_concealed_lever_arm_recovered():
 def test_attenuation_matches_known_regression_dilution():
     """Regressor = truth + reference noise; the same regressor on the measured signal has its own,
     independent noise. The estimated attenuation is var(truth) / (var(truth) + var(ref noise))."""
-    from jaxcal.diagnose.select import attenuation
+    from jaxcal.diagnose.select import attenuation, cross_gram
 
     rng = np.random.default_rng(2)
     n = 20000
@@ -132,10 +132,10 @@ def test_attenuation_matches_known_regression_dilution():
     x_ref[:, :, 1] = truth + 1.5 * rng.standard_normal((n, 3))  # a = 1 / (1 + 1.5^2) = 0.308
     x_meas[:, :, 1] = truth + 0.7 * rng.standard_normal((n, 3))
     ars = [WHITE] * 3
-    a = attenuation(x_ref, x_meas, ars, np.ones(n, bool), [0], [1])
+    a = attenuation(*cross_gram(x_ref, x_meas, ars, np.ones(n, bool)), [0], [1])
     np.testing.assert_allclose(a, [1 / (1 + 1.5**2)], rtol=0.05)
     # an exact reference is not attenuated
-    a1 = attenuation(x_meas, x_meas, ars, np.ones(n, bool), [0], [1])
+    a1 = attenuation(*cross_gram(x_meas, x_meas, ars, np.ones(n, bool)), [0], [1])
     np.testing.assert_allclose(a1, [1.0], rtol=1e-9)
 
 

@@ -13,15 +13,18 @@ from __future__ import annotations
 from typing import Any, Mapping, NamedTuple
 
 import numpy as np
+from scipy import stats
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import kinematics as K
 from jaxcal.diagnose.refit import RefitResult, refit
 from jaxcal.diagnose.select import (
+    Decision,
     SelectConfig,
     SensorData,
     attenuation,
     block_score_inflation,
+    cross_gram,
     build_system,
     candidates,
     canonical_correlation,
@@ -291,9 +294,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         ars = [fit_ar(r1[:, i], rows , cfg.max_ar_order) for i in range(3)]
         stat = _whitened_rss(r0, ars, rows) - _whitened_rss(r1, ars, rows)
         if stat > critical_value(level, 1):
-            from scipy import stats as _st
-
-            coarse = (float(stat), float(_st.chi2.logsf(stat, 1) / np.log(10)))
+            coarse = (float(stat), float(stats.chi2.logsf(stat, 1) / np.log(10)))
             tau_lin = _refine_tau(kind, sd, tau_c, ars, rows, dt)
             pre.append("time_offset")
             warnings.append(f"{s}: coarse search found a large time offset of {tau_lin * 1e3:.1f} ms ({lag} samples, refined to a fraction of a sample); refined below")
@@ -328,9 +329,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             # includes them towards the limit and hide the clipping they are evidence of
             r_np, _ = _baseline_resid(kind, sd, theta_lin, fit_rows & ~pmask)
             st = saturation_stat(sd, sd.y - r_np, r_np, ars, fit_rows, lim)
-            from scipy import stats as _st
-
-            lp = float(_st.chi2.logsf(max(st, 0.0), 1) / np.log(10))
+            lp = float(stats.chi2.logsf(max(st, 0.0), 1) / np.log(10))
             sel = lp < np.log10(level)
             sat_info = {"limit": lim, "n_clipped": int(pmask.sum()), "stat": st, "log10_p": lp, "selected": bool(sel)}
             if sel:
@@ -349,21 +348,19 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             break
         prev = selected
     if coarse is not None:
-        from jaxcal.diagnose.select import Decision
-
         decisions["time_offset"] = Decision("time_offset", coarse[0], 1, coarse[1], float("nan"), True, "selected (coarse search)")
     if _relin is not None:
         decisions["time_offset"] = _relin[1]._replace(reason=_relin[1].reason + f"; model relinearised at the refit offset {tau_lin * 1e3:.2f} ms and the other effects reselected")
     # detectability and confounding, relative to the baseline
     base = list(range(nb))
     mds = {}
-    x_meas = None if meas is None else linearize(kind, sd._replace(inp=meas), beta, theta_lin)[0]
+    grams = None if meas is None else cross_gram(x, linearize(kind, sd._replace(inp=meas), beta, theta_lin)[0], ars, fit_rows)
     mds_infl: dict[str, np.ndarray] = {}
     for c in cands:
         F = projected_information(S, base, group_columns(kind, s, c))
         att = None
-        if x_meas is not None:
-            att = attenuation(x, x_meas, ars, fit_rows, base, group_columns(kind, s, c))
+        if grams is not None:
+            att = attenuation(*grams, base, group_columns(kind, s, c))
             infl = block_score_inflation(S, base, group_columns(kind, s, c), cols, th)
             F = F * (att / infl)[:, None] * (att / infl)[None, :]
             mds_infl[c] = infl
@@ -429,8 +426,6 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     if _relin is None and "time_offset" in order:
         tau_hat = float(final_all.theta[E.slot(s, "time_offset").start])
         if abs(tau_hat - tau_lin) > 0.02 * dt:
-            from jaxcal.diagnose.select import Decision
-
             d0 = decisions["time_offset"]
             return diagnose_sensor(kind, sd, cfg, n_tests, (tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0)), meas)
     return SensorResult(

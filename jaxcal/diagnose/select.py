@@ -220,32 +220,37 @@ def projected_information(S: System, base: list[int], cols: list[int]) -> np.nda
     return G[np.ix_(cols, cols)] - gbc.T @ sol
 
 
-def attenuation(x_ref: np.ndarray, x_meas: np.ndarray, ars: list[ARModel], rows: np.ndarray, base: list[int], cols: list[int]) -> np.ndarray:
+def cross_gram(x_ref: np.ndarray, x_meas: np.ndarray, ars: list[ARModel], rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened Gram ``X_ref^T X_ref`` and cross-Gram ``X_ref^T X_meas`` (Q, Q) of regressors
+    (N, 3, Q) on the reference motion and on the sensors' measured signals, summed over axes."""
+    q = x_ref.shape[2]
+    Grr, Grm = np.zeros((q, q)), np.zeros((q, q))
+    fi = fill_index(rows)
+    for i in range(3):
+        ok = gap_ok(rows, ars[i].memory)
+        xr = apply_filter(x_ref[fi, i, :], ars[i])[ok]
+        xm = apply_filter(x_meas[fi, i, :], ars[i])[ok]
+        Grr += xr.T @ xr
+        Grm += xr.T @ xm
+    return Grr, Grm
+
+
+def attenuation(Grr: np.ndarray, Grm: np.ndarray, base: list[int], cols: list[int]) -> np.ndarray:
     """Errors-in-variables attenuation of the regressors ``cols`` (per component, in (0, 1]).
 
     When the reference motion is derived from a noisy source (a mocap pose differentiated twice),
     a regressor built from it is ``X = X_true + X_noise`` and the Fisher information ``X^T X``
     counts the noise as information; the test's real noncentrality is smaller by ``a^2`` with
     ``a = X_true^T X_true / X^T X``. ``X_true^T X_true`` is estimated without knowing ``X_true``
-    from the same regressors evaluated on the sensors' own measured signals (``x_meas``, whose
-    noise is independent of the reference's): ``a_j = [F_rm^T F_rr^-1 F_rm]_jj / [F_rr]_jj`` under
-    the square root, with ``F_rr``/``F_rm`` the whitened (cross-)information of reference and
-    measured regressors after projecting out the baseline ``base``.
+    from the same regressors evaluated on the sensors' own measured signals, whose noise is
+    independent of the reference's (:func:`cross_gram` gives ``Grr``, ``Grm``):
+    ``a_j = [F_rm^T F_rr^-1 F_rm]_jj / [F_rr]_jj`` under the square root, with ``F_rr``/``F_rm``
+    the (cross-)information of ``cols`` after projecting out the baseline ``base``.
     """
-    idx = base + cols
-    q = len(idx)
-    Grr, Grm = np.zeros((q, q)), np.zeros((q, q))
-    fi = fill_index(rows)
-    for i in range(3):
-        ok = gap_ok(rows, ars[i].memory)
-        xr = apply_filter(x_ref[fi][:, i, :][:, idx], ars[i])[ok]
-        xm = apply_filter(x_meas[fi][:, i, :][:, idx], ars[i])[ok]
-        Grr += xr.T @ xr
-        Grm += xr.T @ xm
-    nb = len(base)
-    sol = np.linalg.lstsq(Grr[:nb, :nb], np.concatenate([Grr[:nb, nb:], Grm[:nb, nb:]], 1), rcond=None)[0]
-    Frr = Grr[nb:, nb:] - Grr[nb:, :nb] @ sol[:, : q - nb]
-    Frm = Grm[nb:, nb:] - Grr[nb:, :nb] @ sol[:, q - nb :]
+    gbb = Grr[np.ix_(base, base)]
+    sol = np.linalg.lstsq(gbb, np.concatenate([Grr[np.ix_(base, cols)], Grm[np.ix_(base, cols)]], 1), rcond=None)[0]
+    Frr = Grr[np.ix_(cols, cols)] - Grr[np.ix_(cols, base)] @ sol[:, : len(cols)]
+    Frm = Grm[np.ix_(cols, cols)] - Grr[np.ix_(cols, base)] @ sol[:, len(cols) :]
     feff = Frm.T @ np.linalg.lstsq(Frr, Frm, rcond=None)[0]
     d = np.clip(np.diag(Frr), 1e-300, None)
     return np.clip(np.sqrt(np.clip(np.diag(feff), 0.0, None) / d), 0.05, 1.0)
