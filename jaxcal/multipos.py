@@ -18,6 +18,11 @@ and turns it by hand in between.
   the Xsens angles by < 0.001 deg against the per-sample product), and under the physical convention (``CONVENTIONS.md``) the gravity
   direction measured in pose ``j`` must be carried onto pose ``j + 1``: ``R^T u_j = u_{j+1}``.
 
+Optional extra gyro rows: sections of known rotation (:class:`KnownRotations`, e.g. a closed
+turn, ``R_known = I``) and whole turns about the vertical (:class:`VerticalTurns`, e.g. the IMU
+turned flat on a table, as in Ferraris' protocol, but unlabelled: the turning axis is the gravity
+direction the calibrated accelerometer measures at the rests next to the turn).
+
 Everything is initialised from the data: the accelerometer from an axis-aligned ellipsoid fit of
 the pose means (fallback: per-axis min/max), the gyro scale from a grid search over
 ``G = s I`` (both signs, 1e-7 .. 10 unit/LSB) of the same residual. Both fits are
@@ -225,6 +230,72 @@ def prepare_known(
     return KnownRotations(out["sy"], sdt, out["c0"], out["p1"], out["p2"], out["sacc"], r, ok)
 
 
+class VerticalTurns(NamedTuple):
+    """Whole turns about the vertical, e.g. the IMU turned flat on a table (the rotations of
+    Ferraris' protocol), used **without labels**: during such a turn the body rotation axis is the
+    gravity direction in the body frame and stays fixed, so the integrated rate is exactly
+    ``angle * u`` (either sense), with ``u`` the unit gravity direction measured at rest next to
+    the turn. Three turns about independent axes fix the gyro matrix on their own (see
+    :func:`turn_init`); with gravity carrying they pin its scales about vertical axes.
+
+    ``y_int`` (K, 3): ``sum y dt`` over the turn (midpoint rates; gyro units * s); ``dt_sum`` (K,):
+    its duration; ``rest_acc`` (K, 3): mean accelerometer output at the adjacent rests;
+    ``angle`` (K,): the magnitude of the turn (rad, ``2 pi`` per revolution); ``seg_ok`` (K,):
+    False if the gyro saturated."""
+
+    y_int: Float[Array, "K 3"]
+    dt_sum: Float[Array, "K"]
+    rest_acc: Float[Array, "K 3"]
+    angle: Float[Array, "K"]
+    seg_ok: Bool[Array, "K"]
+
+
+def rests_around(spans: np.ndarray, n: int, gap: int, n_samples: int) -> list[list[tuple[int, int]]]:
+    """Rest windows next to each span ``[a, b]``: ``n`` samples ending ``gap`` before ``a`` and ``n``
+    samples starting ``gap`` after ``b`` (clipped to the recording), as ``[start, stop)`` pairs."""
+    out = []
+    for a, b in np.asarray(spans, np.int64).reshape(-1, 2):
+        w = [(max(0, a - gap - n), max(0, a - gap)), (min(n_samples, b + gap + 1), min(n_samples, b + gap + 1 + n))]
+        out.append([(int(x), int(y)) for x, y in w if y > x])
+    return out
+
+
+def prepare_turns(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    spans: np.ndarray,
+    rests: list,
+    *,
+    revolutions: Any = 1,
+    gyr_limit: float | None = None,
+    midpoint: bool = True,
+) -> VerticalTurns:
+    """Vertical turns (numpy). ``spans`` (K, 2): first and last sample ``[a, b]`` of each turn;
+    ``rests``: per turn, a list of static ``[start, stop)`` windows whose mean accelerometer output
+    gives the turning axis (e.g. :func:`rests_around`); ``revolutions``: whole turns per section
+    (scalar or (K,)). Raises if a turn has no rest samples."""
+    t = np.asarray(t, np.float64)
+    acc = np.asarray(acc, np.float64)
+    gyr = np.asarray(gyr, np.float64)
+    sp = np.asarray(spans, np.int64).reshape(-1, 2)
+    if len(rests) != len(sp):
+        raise ValueError(f"rests: need one list of windows per turn ({len(sp)}), got {len(rests)}")
+    y_int, dt_sum, rest_acc, ok = [], [], [], []
+    for (a, b), win in zip(sp, rests):
+        idx = np.concatenate([np.arange(x, y) for x, y in win]) if win else np.zeros(0, np.int64)
+        if idx.size == 0:
+            raise ValueError(f"turn [{a}, {b}]: no rest samples to take the turning axis from")
+        y = 0.5 * (gyr[a:b] + gyr[a + 1 : b + 1]) if midpoint else gyr[a:b]
+        dt = np.diff(t[a : b + 1])
+        y_int.append((y * dt[:, None]).sum(0))
+        dt_sum.append(dt.sum())
+        rest_acc.append(acc[idx].mean(0))
+        ok.append(gyr_limit is None or not np.any(np.abs(gyr[a : b + 1]) >= gyr_limit))
+    angle = 2 * np.pi * np.broadcast_to(np.asarray(revolutions, np.float64), (len(sp),))
+    return VerticalTurns(np.asarray(y_int), np.asarray(dt_sum), np.asarray(rest_acc), angle.copy(), np.asarray(ok))
+
+
 class DatasheetPrior(NamedTuple):
     """Optional Gaussian prior (MAP) on the scales and cross-axis terms, from a datasheet.
 
@@ -380,15 +451,56 @@ def known_rotation_residuals(
     return log_so3(jnp.swapaxes(known.R, -1, -2) @ r)
 
 
+def _turn_axes(acc: InverseAffine, turns: VerticalTurns) -> Float[Array, "K 3"]:
+    f = (turns.rest_acc - acc.b) @ acc.A.T
+    return f / jnp.linalg.norm(f, axis=-1, keepdims=True)
+
+
+def vertical_turn_residuals(
+    g: Float[Array, "3 3"], b: Float[Array, "3"], gsens: Float[Array, "3 3"], acc: InverseAffine, turns: VerticalTurns
+) -> Float[Array, "K 3"]:
+    """``I_k - angle_k s_k u_k`` per turn (rad): ``I_k = G (y_int - b dt) - G_s f dt`` the
+    integrated calibrated rate, ``u_k`` the calibrated gravity direction at the adjacent rests,
+    ``s_k = sign(I_k . u_k)`` the sense of the turn. Zero for an exact turn about the vertical."""
+    u = _turn_axes(acc, turns)
+    i = (turns.y_int - b * turns.dt_sum[:, None]) @ g.T - (u * turns.dt_sum[:, None]) @ gsens.T
+    s = jnp.sign(jnp.sum(i * u, -1))
+    return i - (turns.angle * s)[:, None] * u
+
+
+def vertical_turn_errors(
+    gyr: InverseAffine, gsens: Float[Array, "3 3"], acc: InverseAffine, turns: VerticalTurns
+) -> Float[Array, "K"]:
+    """Norm of :func:`vertical_turn_residuals` per turn (rad): the angle by which the integrated
+    turn misses a whole turn about the measured vertical."""
+    return jnp.linalg.norm(vertical_turn_residuals(gyr.A, gyr.b, gsens, acc, turns), axis=-1)
+
+
+def turn_init(b: Float[Array, "3"], acc: InverseAffine, turns: VerticalTurns, w: Float[Array, "K"], sign: Any = 1.0) -> Float[Array, "3 3"]:
+    """Closed-form gyro matrix from vertical turns (weights ``w``; at least three about independent
+    axes): least squares ``G Y = U`` with ``Y_k = y_int_k - b dt_k`` and ``U_k = angle_k s_k u_k``,
+    where the sense ``s_k = sign(sign * Y_k . u_k)`` follows a guess of ``sign(G)`` (``sign``). This
+    is the Ferraris gyro calibration with the axes measured by the accelerometer instead of labelled."""
+    u = _turn_axes(acc, turns)
+    y = turns.y_int - b * turns.dt_sum[:, None]
+    s = jnp.sign(sign * jnp.sum(y * u, -1))
+    target = (turns.angle * s)[:, None] * u
+    yw, tw = y * w[:, None], target * w[:, None]
+    # G = T^T Y (Y^T Y)^-1 in row form: solve (Y^T W Y) G^T = Y^T W T
+    return jnp.linalg.lstsq(yw.T @ y, yw.T @ target, rcond=1e-10)[0].T
+
+
 def gyr_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "R"]:
     """``sqrt(w_j) (R_j^T u_j - u_{j+1})`` for every transition ``j`` (physical convention).
 
-    Optional ``args[7:]``: ``(known, known_w, known_fsum, prior, unit_per_lsb)``: known-rotation
-    rows ``sqrt(w_k) log_so3(R_known^T R_int)`` (:func:`known_rotation_residuals`) and, with a
-    :class:`DatasheetPrior`, all data rows divided by its ``gyr_sigma`` plus its 9 prior rows on
-    ``G``."""
+    Optional ``args[7:]``: ``(known, known_w, known_fsum, prior, turns, turns_w, acc)``:
+    known-rotation rows ``sqrt(w_k) log_so3(R_known^T R_int)`` (:func:`known_rotation_residuals`),
+    vertical-turn rows ``sqrt(w_k) (I_k - angle_k s_k u_k)`` (:func:`vertical_turn_residuals`, axes
+    from the accelerometer calibration ``acc``) and, with a :class:`DatasheetPrior`, all data rows
+    divided by its ``gyr_sigma`` plus its 9 prior rows on ``G``."""
     d, bg, s0, gs, fsum, u, wj = args[:7]
     known, known_w, kfsum, prior = args[7:11] if len(args) > 7 else (None, None, None, None)
+    turns, turns_w, acc = args[11:14] if len(args) > 11 else (None, None, None)
     g = s0 * (jnp.eye(3, dtype=theta.dtype) + theta[:9].reshape(3, 3))
     gsm = theta[9:18].reshape(3, 3) if gs else jnp.zeros((3, 3), theta.dtype)
     r = carry_rotation(block_rotvecs(g, bg, gsm, d, fsum), jnp.ones_like(d.sdt))
@@ -397,6 +509,9 @@ def gyr_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "R"]:
     if known is not None:
         kr = known_rotation_residuals(g, bg, gsm, known, kfsum)
         rows.append((jnp.sqrt(known_w * known.seg_ok.astype(kr.dtype))[:, None] * kr).ravel())
+    if turns is not None:
+        tr = vertical_turn_residuals(g, bg, gsm, acc, turns)
+        rows.append((jnp.sqrt(turns_w * turns.seg_ok.astype(tr.dtype))[:, None] * tr).ravel())
     if prior is not None and prior.gyr_unit_per_lsb is not None:
         rows = [x / prior.gyr_sigma for x in rows] + [prior_rows(g, prior.gyr_unit_per_lsb, prior)]
     return jnp.concatenate(rows)
@@ -435,6 +550,8 @@ def fit_prepared(
     gyr_w: Float[Array, "J"] | None = None,
     known: KnownRotations | None = None,
     known_w: Float[Array, "K"] | None = None,
+    turns: VerticalTurns | None = None,
+    turns_w: Float[Array, "T"] | None = None,
 ) -> MultiposFit:
     """Accelerometer then gyroscope fit on prepared data (pure; vmappable over the weights).
 
@@ -443,6 +560,9 @@ def fit_prepared(
     out. ``known`` (optional, :func:`prepare_known`): sections of known rotation, each adding the
     3 rows ``log_so3(R_known^T R_int)`` to the gyro fit (weights ``known_w``, default ones); they
     observe what gravity carrying cannot, e.g. the scale about a vertical turning axis.
+    ``turns`` (optional, :func:`prepare_turns`): whole turns about the vertical, unlabelled, each
+    adding the 3 rows of :func:`vertical_turn_residuals` (weights ``turns_w``); with at least three
+    turns the gyro fit also starts from :func:`turn_init` when that beats the scalar grid start.
     ``config.prior``: optional datasheet prior (MAP). Call under ``jax.enable_x64(True)`` for raw
     counts (as :func:`fit_multipos` does).
     """
@@ -467,21 +587,32 @@ def fit_prepared(
         extra = (known, known_w, kfsum)
     else:
         extra = (None, None, None)
+    if turns is not None:
+        turns_w = jnp.ones(turns.angle.shape[0], dtype) if turns_w is None else turns_w
+        textra = (turns, turns_w, acc)
+    else:
+        textra = (None, None, None)
     # scale initialisation: grid over G = s I, both signs (4 per decade)
     grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
     zero = jnp.zeros(18 if config.g_sensitivity else 9, dtype)
 
-    def grid_cost(s):
-        return jnp.sum(gyr_residuals(zero, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w, *extra, None)) ** 2)
+    def cost_at(s, th):
+        return jnp.sum(gyr_residuals(th, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w, *extra, None, *textra)) ** 2)
 
-    costs = jnp.nan_to_num(jax.vmap(grid_cost)(grid), nan=jnp.inf)
+    costs = jnp.nan_to_num(jax.vmap(lambda s: cost_at(s, zero))(grid), nan=jnp.inf)
     s0 = grid[jnp.argmin(costs)]
-    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w, *extra, config.prior)
+    theta0 = zero
+    if turns is not None and turns.angle.shape[0] >= 3:  # label-free Ferraris start, if it is better
+        gc = turn_init(bg, acc, turns, turns_w * turns.seg_ok.astype(dtype), jnp.sign(s0))
+        th_c = zero.at[:9].set((gc / s0 - jnp.eye(3, dtype=dtype)).ravel())
+        c_c = jnp.nan_to_num(cost_at(s0, th_c), nan=jnp.inf)
+        theta0 = jnp.where(c_c < jnp.min(costs), th_c, zero)
+    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w, *extra, config.prior, *textra)
     solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
-    sol = optx.least_squares(gyr_residuals, solver, zero, args=args, max_steps=config.max_steps, throw=False)
+    sol = optx.least_squares(gyr_residuals, solver, theta0, args=args, max_steps=config.max_steps, throw=False)
     g = s0 * (jnp.eye(3, dtype=dtype) + sol.value[:9].reshape(3, 3))
     gs = sol.value[9:18].reshape(3, 3) if config.g_sensitivity else jnp.zeros((3, 3), dtype)
-    gyr_cost = jnp.sum(gyr_residuals(sol.value, args[:10] + (None,)) ** 2)
+    gyr_cost = jnp.sum(gyr_residuals(sol.value, args[:10] + (None,) + args[11:]) ** 2)
     return MultiposFit(acc, InverseAffine(g, bg), gs, acc_cost, gyr_cost)
 
 

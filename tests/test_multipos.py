@@ -287,21 +287,85 @@ def test_prior_fills_unobserved_direction_only():
     assert abs(fit0.gyr.A[0, 0] - S_TRUE[0]) < 2e-3  # same observed value without the prior
 
 
+def _vertical_turns(ups, senses, g_true, b_g, fs=100.0):
+    """Turns about the vertical (body rate ``theta'(t) u`` with ``u`` the body-frame vertical, fixed)
+    of 2 s each between 1 s rests, one per unit ``up``; gyro raw ``G^-1 w + b``, accelerometer = ``u``
+    (A = I, b = 0). The rate profile's trapezoid sum is the exact ``2 pi`` (see :func:`_axis_turns`)."""
+    dt, n_turn, n_rest = 1.0 / fs, int(2.0 * fs), int(1.0 * fs)
+    acc, gyr, spans, rests = [], [], [], []
+    ginv = np.linalg.inv(g_true)
+    for up, sense in zip(ups, senses):
+        u = np.asarray(up, float) / np.linalg.norm(up)
+        r0 = len(acc)
+        acc += [u] * n_rest
+        gyr += [b_g] * n_rest
+        a = len(acc) - 1
+        for k in range(1, n_turn + 1):
+            rate = sense * np.pi * (1 - np.cos(2 * np.pi * k * dt / 2.0))  # integrates to 2 pi over 2 s
+            acc.append(u)
+            gyr.append(ginv @ (rate * u) + b_g)
+        spans.append((a, len(acc) - 1))
+        r1 = len(acc)
+        acc += [u] * n_rest
+        gyr += [b_g] * n_rest
+        rests.append([(r0, a), (r1, len(acc))])
+    return np.arange(len(acc)) * dt, np.asarray(acc), np.asarray(gyr), np.asarray(spans), rests
+
+
+G_FULL = np.array([[1.05, 0.02, -0.01], [-0.015, 0.97, 0.03], [0.01, -0.02, 1.08]])
+
+
+def test_vertical_turns_closed_form_and_residual_at_truth():
+    """Three unlabelled turns about the vertical (tilted 'up' directions, both senses) determine the
+    full gyro matrix: :func:`turn_init` returns the simulated G (a Ferraris calibration whose axes
+    come from the accelerometer), and the turn residual is zero at the truth, 2 pi * |error| off it."""
+    ups = [[1.0, 0.1, -0.05], [0.05, -1.0, 0.1], [0.1, 0.05, 1.0]]
+    t, acc, gyr, spans, rests = _vertical_turns(ups, [1.0, -1.0, 1.0], G_FULL, B_G)
+    with jax.enable_x64(True):
+        tv = jax.tree_util.tree_map(jnp.asarray, mp.prepare_turns(t, acc, gyr, spans, rests))
+        ident = mp.InverseAffine(jnp.eye(3), jnp.zeros(3))
+        g0 = np.asarray(mp.turn_init(jnp.asarray(B_G), ident, tv, jnp.ones(3)))
+        np.testing.assert_allclose(g0, G_FULL, atol=1e-9)
+        e_true = mp.vertical_turn_errors(mp.InverseAffine(jnp.asarray(G_FULL), jnp.asarray(B_G)), jnp.zeros((3, 3)), ident, tv)
+        assert float(jnp.max(e_true)) < 1e-9
+        e_off = mp.vertical_turn_errors(mp.InverseAffine(jnp.asarray(G_FULL) * 1.01, jnp.asarray(B_G)), jnp.zeros((3, 3)), ident, tv)
+        np.testing.assert_allclose(np.asarray(e_off), 2 * np.pi * 0.01, rtol=1e-6)
+    with pytest.raises(ValueError, match="rest"):
+        mp.prepare_turns(t, acc, gyr, spans, [[]] * 3)
+
+
+def test_vertical_turn_fixes_vertical_scale_in_fit():
+    """As the closed-turn test above, but the turn is given only as 'a whole turn about the
+    vertical' (axis from the accelerometer at the rests): G_zz comes out at the simulated 1.08."""
+    turns = [(2, -360)] + XY_TURNS
+    t, acc, gyr, iv, spans = _axis_turns(turns, S_TRUE, B_G)
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, mp.prepare(t, acc, gyr, iv))
+        tv = jax.tree_util.tree_map(jnp.asarray, mp.prepare_turns(t, acc, gyr, spans[:1], [[tuple(iv[0]), tuple(iv[1])]]))
+        fit = jax.tree_util.tree_map(np.asarray, jax.jit(mp.fit_prepared, static_argnums=1)(d, mp.MultiposConfig(), None, None, None, None, tv))
+    assert abs(fit.gyr.A[2, 2] - S_TRUE[2]) < 1e-3
+    np.testing.assert_allclose(np.diag(fit.gyr.A), S_TRUE, atol=2e-3)
+
+
 def test_fair_split_never_scores_a_fitted_sample():
     """imucal session, fair time split (experiments.real_data): on every time fold and every gyro
-    fold, the samples jaxcal fits on (calibration halves, transitions and turns in use) and the
-    sections imucal is given never meet the samples scored (other halves, the left-out transition or
-    turn); and every face's samples are either fitted or scored, in two halves of equal size (+-1)."""
+    fold, the samples jaxcal fits on (calibration halves, motions and turns in use) and the
+    sections imucal is given never meet the samples scored (other halves, the left-out motion or
+    turn); every static section's samples are either fitted or scored, in two halves of equal size
+    (+-1); the rests next to a turn are static (gyro quiet) and outside every labelled section."""
     import json
 
     from experiments import real_data as rd
 
     sec = json.loads((DATA / "imucal_ferraris_example" / "example_ferraris_session_list.json").read_text())
     bounds = {n: (v["start"], v["end"]) for n, v in sec.items()}
+    rec = load_npz(DATA / "imucal_ferraris_example" / "session.npz")
     for fold in (0, 1):
         plan = rd.fair_split_plan(bounds, fold)
-        gw, kw = rd.fair_split_weights(len(plan["spans"]), len(plan["turns"]))
-        assert gw.shape == (8, 5) and kw.shape == (8, 3) and (gw == 0).sum() == 5 and (kw == 0).sum() == 3
+        gw, kw, scored = rd.fair_split_weights(plan["across_turn"], len(plan["turns"]))
+        assert plan["across_turn"].sum() == 3 and len(plan["spans"]) == 11
+        assert gw.shape == (11, 11) and kw.shape == (11, 3) and (scored >= 0).sum() == 8
+        assert np.all(gw[:, plan["across_turn"]] == 0) and (kw == 0).sum() == 3
         imu = rd.imucal_sections(plan, bounds)
         imu_samples = set().union(*(set(range(a, b)) for a, b in imu.values()))
         for g, k in zip(gw, kw):
@@ -309,9 +373,15 @@ def test_fair_split_never_scores_a_fitted_sample():
             assert acc_scored and gyr_scored
             assert not fitted & acc_scored and not fitted & gyr_scored
             assert not imu_samples & acc_scored
-        for n, (fa, fb), (sa, sb) in zip(plan["faces"], plan["fit_iv"], plan["score_iv"]):
-            assert {fa, fb, sa, sb} >= set(bounds[n]) and abs((fb - fa) - (sb - sa)) <= 1
-        # transitions touch no face; turns are separate from faces and transitions
+        for (fa, fb), (sa, sb) in zip(plan["fit_iv"], plan["score_iv"]):
+            assert {fa, fb} & {sa, sb} and abs((fb - fa) - (sb - sa)) <= 1
+        labelled = set().union(*(set(range(*bounds[n])) for n in rd.FACES + rd.TURNS))
+        lo_hi = np.stack([np.minimum(plan["fit_iv"][:, 0], plan["score_iv"][:, 0]), np.maximum(plan["fit_iv"][:, 1], plan["score_iv"][:, 1])], 1)
+        for n, (lo, hi) in zip(plan["statics"], lo_hi):
+            if n not in rd.FACES:
+                assert not labelled & set(range(lo, hi))
+                assert np.abs(rec["gyr"][lo:hi]).max() < 0.05  # rad/s: at rest
+        # motions touch no face; turns are separate from faces and from the motions scored
         face_samples = set().union(*(set(range(*bounds[n])) for n in rd.FACES))
         assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan["spans"]))
         assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan["turns"]))
