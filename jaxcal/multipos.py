@@ -55,7 +55,8 @@ class MultiposConfig(NamedTuple):
     static intervals in use) or ``"init"`` (the first interval only, as imu_tk). ``g_sensitivity``:
     also fit ``G_s``. ``midpoint``: midpoint rates (else the left sample, zero-order hold).
     ``max_steps``: LM iteration cap. ``prior``: optional :class:`DatasheetPrior` (MAP on scales
-    and cross-axis terms; ``None``, the default, uses the data alone)."""
+    and cross-axis terms; ``None``, the default, uses the data alone). ``acc_ridge``: weak ridge on
+    the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns it off)."""
 
     acc_model: str = "9"
     gyro_bias: str = "static"
@@ -63,6 +64,7 @@ class MultiposConfig(NamedTuple):
     midpoint: bool = True
     max_steps: int = 100
     prior: Any = None
+    acc_ridge: float = 1e-2
 
 
 class InverseAffine(NamedTuple):
@@ -346,14 +348,19 @@ def acc_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "P+3"]:
     """``sqrt(w_i) (|A'(m_i - b')| - 1)`` per pose (normalised pose means ``m_i``), plus the
     ``A - A^T`` gauge residual of the physical ``A = A' diag(1/s0)`` for the 12-parameter model (zeros for the 9-parameter one).
     With a :class:`DatasheetPrior` (``args[4]``, optional) the pose rows are divided by its
-    ``acc_sigma`` and its 9 prior rows on the physical ``A`` are appended."""
+    ``acc_sigma`` and its 9 prior rows on the physical ``A`` are appended. ``args[5]`` (optional,
+    default 0): ridge weight on the cross-axis terms of ``A'`` (relative to its diagonal), 6 rows
+    ``ridge * A'_ij / A'_jj`` (i != j; the 9-parameter model's three zeros above the diagonal stay 0)."""
     m, w, model, s0 = args[:4]
     prior = args[4] if len(args) > 4 else None
+    ridge = args[5] if len(args) > 5 else 0.0
     a, b = _acc_matrix(theta, model)
     f = (m - b) @ a.T
     r = jnp.sqrt(w) * (jnp.linalg.norm(f, axis=-1) - 1.0)
     ap = a * (jnp.mean(s0) / s0)[None, :]  # the physical A, up to one common factor
     gauge = jnp.stack([ap[0, 1] - ap[1, 0], ap[0, 2] - ap[2, 0], ap[1, 2] - ap[2, 1]]) if model == "12" else jnp.zeros(3, m.dtype)
+    rel = a / jnp.diag(a)[None, :]
+    r = jnp.concatenate([r, ridge * rel[np.array([0, 0, 1, 1, 2, 2]), np.array([1, 2, 0, 2, 0, 1])]])
     if prior is None or prior.acc_unit_per_lsb is None:
         return jnp.concatenate([r, gauge])
     return jnp.concatenate([r / prior.acc_sigma, gauge, prior_rows(a / s0[None, :], prior.acc_unit_per_lsb, prior)])
@@ -383,10 +390,16 @@ def ellipsoid_init(m: Float[Array, "P 3"], w: Float[Array, "P"]) -> tuple[Array,
 
 def fit_acc(
     pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], model: str = "9", max_steps: int = 100,
-    prior: DatasheetPrior | None = None,
+    prior: DatasheetPrior | None = None, ridge: float = 1e-2,
 ) -> tuple[InverseAffine, Array]:
     """Accelerometer multi-position fit (weights ``w`` per pose; 0 leaves a pose out; optional
-    datasheet ``prior``, MAP). The returned cost leaves the prior rows out and is unweighted."""
+    datasheet ``prior``, MAP). The returned cost leaves the prior and ridge rows out and is
+    unweighted.
+
+    ``ridge`` (default 1e-2 g per unit of cross-axis term) keeps the non-orthogonality terms that
+    the poses barely see at zero instead of fitting them to noise: with poses along the sensor
+    axes only (a six-face protocol, and its repeats) they are unobserved to first order and a free
+    fit wanders to ~0.1; with poses in general directions the ridge moves nothing measurable."""
     c0, s0 = ellipsoid_init(pose_acc, w)
     m = (pose_acc - c0) / s0
     if model == "9":
@@ -396,7 +409,7 @@ def fit_acc(
     else:
         raise ValueError(f"acc_model must be '9' or '12', got {model!r}")
     solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
-    sol = optx.least_squares(acc_residuals, solver, theta0, args=(m, w, model, s0, prior), max_steps=max_steps, throw=False)
+    sol = optx.least_squares(acc_residuals, solver, theta0, args=(m, w, model, s0, prior, ridge), max_steps=max_steps, throw=False)
     a, b = _acc_matrix(sol.value, model)
     cost = jnp.sum(acc_residuals(sol.value, (m, w, model, s0)) ** 2)
     return InverseAffine(A=a / s0[None, :], b=c0 + s0 * b), cost
@@ -571,7 +584,7 @@ def fit_prepared(
     acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
     gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
     gyr_w = gyr_w * data.seg_ok.astype(dtype)
-    acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior)
+    acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior, config.acc_ridge)
     f = (data.pose_acc - acc.b) @ acc.A.T
     u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
     # gyro bias from the static intervals (of the poses in use)
@@ -625,13 +638,29 @@ def fit_multipos(
     *,
     gyr_limit: float | None = None,
     block: int = 8,
+    turns: VerticalTurns | None = None,
 ) -> MultiposFit:
-    """:func:`prepare` + :func:`fit_prepared` in float64; returns numpy-backed arrays."""
+    """:func:`prepare` + :func:`fit_prepared` in float64 (optional vertical ``turns``, see
+    :func:`prepare_turns`); returns numpy-backed arrays."""
     with jax.enable_x64(True):
         data = jax.tree_util.tree_map(
             jnp.asarray, prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block))
-        fit = jax.jit(fit_prepared, static_argnums=1)(data, config)
+        tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
+        fit = jax.jit(fit_prepared, static_argnums=1)(data, config, None, None, None, None, tv)
         return jax.tree_util.tree_map(np.asarray, fit)
+
+
+def turns_from_times(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, times: Any, rest: float = 1.0,
+                     gyr_limit: float | None = None) -> VerticalTurns:
+    """:class:`VerticalTurns` from turn start/end times ``times`` (K, 2) in seconds; each turn's axis
+    is read from ``rest`` seconds of rest just before and just after it (5 samples away)."""
+    t = np.asarray(t, np.float64)
+    tt = np.asarray(times, np.float64).reshape(-1, 2)
+    if np.any(tt[:, 1] <= tt[:, 0]) or tt.min() < t[0] or tt.max() > t[-1]:
+        raise ValueError(f"turns: each needs start < end inside the recording [{t[0]:.3f}, {t[-1]:.3f}] s, got {tt.tolist()}")
+    spans = np.stack([np.searchsorted(t, tt[:, 0]), np.minimum(np.searchsorted(t, tt[:, 1]), len(t) - 1)], 1)
+    n = max(1, int(round(rest / float(np.median(np.diff(t))))))
+    return prepare_turns(t, acc, gyr, spans, rests_around(spans, n, 5, len(t)), gyr_limit=gyr_limit)
 
 
 def to_affine(cal: InverseAffine) -> Affine:
@@ -657,10 +686,15 @@ def detect_and_fit(
     window: float = 1.0,
     min_duration: float = 1.0,
     gyr_limit: float | None = None,
+    turn_times: Any = None,
+    gyr_gate: bool = False,
 ) -> tuple[MultiposFit, np.ndarray, float]:
     """imu_tk's procedure: for each threshold multiplier ``k`` detect the static intervals and
     fit the accelerometer; keep the ``k`` with the smallest mean squared ``|f| - 1`` residual
-    (at least 9 poses), then fit the gyroscope. Returns ``(fit, intervals, k)``.
+    (at least 9 poses), then fit the gyroscope. Returns ``(fit, intervals, k)``. ``turn_times``
+    (K, 2) s, optional: whole turns about the vertical (:func:`turns_from_times`), unlabelled.
+    ``gyr_gate``: also require a quiet gyro at rest (:func:`~jaxcal.static.detect_static`), which
+    keeps turns about the vertical out of the poses; off by default (imu_tk's detector).
 
     ``init_duration`` defaults to the first run of low acceleration variance: the first 10 % of
     the recording, capped at 30 s, is a safe guess only if the user rested there; pass it.
@@ -670,19 +704,21 @@ def detect_and_fit(
         init_duration = min(30.0, 0.1 * (t[-1] - t[0]))
     best = None
     for k in ks:
-        det = detect_static(t, acc, k=k, init_duration=init_duration, window=window, min_duration=min_duration)
+        det = detect_static(t, acc, k=k, init_duration=init_duration, window=window, min_duration=min_duration,
+                            gyr=gyr if gyr_gate else None)
         if len(det.intervals) < 9:
             continue
         with jax.enable_x64(True):
             pa = jnp.asarray(np.stack([np.asarray(acc, np.float64)[a:b].mean(0) for a, b in det.intervals]))
-            _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps)
+            _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps, None, config.acc_ridge)
         score = float(cost) / len(pa)
         if best is None or score < best[0]:
             best = (score, det)
     if best is None:
         raise ValueError("multipos: fewer than 9 static poses found for every threshold; record more poses")
     det = best[1]
-    fit = fit_multipos(t, acc, gyr, det.intervals, config, gyr_limit=gyr_limit)
+    turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=gyr_limit)
+    fit = fit_multipos(t, acc, gyr, det.intervals, config, gyr_limit=gyr_limit, turns=turns)
     return fit, det.intervals, det.k
 
 
@@ -692,7 +728,8 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
 
     Returns the forward models ``(acc_model, gyr_model)`` as :class:`~jaxcal.sensor.Affine`
     (``y = S x + b``, ``x`` in g and rad/s, ``y`` in the recording's units). The g-sensitivity
-    option is not representable as an ``Affine`` and is off here.
+    option is not representable as an ``Affine`` and is off here. ``kwargs`` go to
+    :func:`detect_and_fit` (here ``gyr_gate`` defaults to True; ``turn_times`` adds vertical turns).
     """
     get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
     t, acc, gyr = get("t"), get("acc"), get("gyr")
@@ -701,6 +738,7 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     if config.g_sensitivity:
         raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
     kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), get("gyr_unit") or "LSB"))
+    kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
     fit, _, _ = detect_and_fit(t, acc, gyr, config, **kwargs)
     return to_affine(fit.acc), to_affine(fit.gyr)
 

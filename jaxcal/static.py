@@ -72,17 +72,29 @@ def detect_static(
     init_duration: float = 10.0,
     window: float = 1.0,
     min_duration: float = 1.0,
+    gyr: np.ndarray | None = None,
+    gyr_k: float = 10.0,
 ) -> StaticDetection:
     """imu_tk's detector with one threshold multiplier ``k``.
+
+    imu_tk looks at the accelerometer only, so a turn about the vertical (gravity stays put)
+    passes for rest. With ``gyr`` given, a sample is also required to have a window-mean
+    ``|gyr - b|`` below ``gyr_k`` times the gyro noise, which cuts such turns out; ``b`` is the
+    median gyro output over the accelerometer-static samples and the noise (norm of the per-axis
+    std) is estimated robustly there from sample-to-sample differences (1.4826 MAD / sqrt 2), so a
+    hand still moving during the initial period does not inflate it.
 
     Args:
         t: (N,) sample times (s).
         acc: (N, 3) accelerometer (any unit; raw counts fine).
         k: threshold = ``k`` x the variance magnitude of the initial rest period.
         init_duration: length (s) of the initial rest period the user kept still. It is always
-            returned as the first interval (imu_tk does the same).
+            returned as the first interval (imu_tk does the same), unless the gyro gate (below)
+            finds it moving.
         window: sliding-window length (s).
         min_duration: shortest static interval kept (s).
+        gyr: optional (N, 3) gyroscope (any unit), see above.
+        gyr_k: gyro threshold multiplier.
 
     Returns:
         :class:`StaticDetection`.
@@ -101,6 +113,17 @@ def detect_static(
     threshold = float(k * np.linalg.norm(init_var))
     mask = var_mag < threshold
     mask[:n_init] = True
+    if gyr is not None:  # applies to the initial period too
+        g = np.asarray(gyr, np.float64)
+        still = mask | (np.arange(len(mask)) < n_init)
+        b = np.median(g[still], axis=0)
+        dg = np.abs(np.diff(g, axis=0))[still[1:] & still[:-1]]
+        sigma = float(np.linalg.norm(1.4826 * np.median(dg, axis=0) / np.sqrt(2.0)))
+        dev = np.linalg.norm(g - b, axis=1)
+        c = np.concatenate([[0.0], np.cumsum(dev)])
+        idx = np.arange(len(dev))
+        lo, hi = np.maximum(idx - half, 0), np.minimum(idx + half + 1, len(dev))
+        mask &= (c[hi] - c[lo]) / (hi - lo) < gyr_k * max(sigma, 1e-12)
     iv = intervals_from_mask(mask, max(1, int(round(min_duration / dt))))
     return StaticDetection(iv, var_mag, threshold, float(k))
 

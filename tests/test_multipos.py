@@ -347,6 +347,47 @@ def test_vertical_turn_fixes_vertical_scale_in_fit():
     np.testing.assert_allclose(np.diag(fit.gyr.A), S_TRUE, atol=2e-3)
 
 
+def test_gyro_gate_keeps_turns_about_the_vertical_out_of_the_poses():
+    """imu_tk's accelerometer-only detector takes imucal's three turns about the vertical for rest
+    (gravity does not move); with the gyro gate no detected interval meets a turn, and the six faces
+    are still found."""
+    import json
+
+    sec = json.loads((DATA / "imucal_ferraris_example" / "example_ferraris_session_list.json").read_text())
+    rec = load_npz(DATA / "imucal_ferraris_example" / "session.npz")
+    turns = [set(range(sec[n]["start"], sec[n]["end"])) for n in ("x_rot", "y_rot", "z_rot")]
+    faces = [set(range(sec[n]["start"], sec[n]["end"])) for n in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")]
+
+    def hits(iv, sections):
+        return sum(any(set(range(a, b)) & s for a, b in iv) for s in sections)
+
+    kw = dict(k=2, init_duration=10.0, window=1.0, min_duration=1.0)
+    plain = detect_static(rec["t"], rec["acc"], **kw).intervals
+    gated = detect_static(rec["t"], rec["acc"], gyr=rec["gyr"], **kw).intervals
+    assert hits(plain, turns) == 3
+    assert hits(gated, turns) == 0 and hits(gated, faces) == 6
+
+
+def test_acc_ridge_holds_unseen_cross_axis_terms():
+    """Poses along the sensor axes only (six faces, each twice, tilted by ~0.6 deg, 0.3 mg noise)
+    barely see the three non-orthogonality terms (true value 0): a free fit wanders to ~0.03, the
+    default ridge keeps them below 0.01 (a third of that or less) while |f| still fits to the noise."""
+    rng = np.random.default_rng(0)
+    dirs = np.concatenate([np.eye(3), -np.eye(3)] * 2) + 0.01 * rng.standard_normal((12, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    k, b = np.array([1.02, 0.98, 1.01]), np.array([0.03, -0.02, 0.05])
+    y = dirs * k + b + 3e-4 * rng.standard_normal((12, 3))  # raw = K f + b, f unit
+    with jax.enable_x64(True):
+        out = {}
+        for ridge in (0.0, 1e-2):
+            cal, cost = mp.fit_acc(jnp.asarray(y), jnp.ones(12), ridge=ridge)
+            a = np.asarray(cal.A)
+            out[ridge] = (np.abs((a / np.diag(a)[None, :])[np.tril_indices(3, -1)]).max(), float(cost))
+    assert out[1e-2][0] < 0.01
+    assert out[0.0][0] > 2 * out[1e-2][0]
+    assert np.sqrt(out[1e-2][1] / 12) < 3e-4  # |f| residual stays at the noise level
+
+
 def test_fair_split_never_scores_a_fitted_sample():
     """imucal session, fair time split (experiments.real_data): on every time fold and every gyro
     fold, the samples jaxcal fits on (calibration halves, motions and turns in use) and the
