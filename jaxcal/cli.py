@@ -123,7 +123,23 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--gyr-range", type=float, default=250.0, help="gyroscope full scale in deg/s for eq. 3.6 bounds (default 250)"
     )
+    m = p.add_argument_group("multipos options")
+    m.add_argument(
+        "--turns", type=_turns, default=None, metavar="T0-T1[,T0-T1...]",
+        help="whole turns about the vertical (e.g. turned flat on a table), start-end in seconds; their axes "
+        "are read from the accelerometer at the rests around them (no labels)",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def _turns(text: str) -> tuple[tuple[float, float], ...]:
+    try:
+        out = tuple(tuple(float(x) for x in part.split("-")) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START-END[,START-END...] in seconds, got {text!r}") from None
+    if any(len(x) != 2 or x[1] <= x[0] for x in out):
+        raise argparse.ArgumentTypeError(f"each turn needs START-END with START < END, got {text!r}")
+    return out
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
@@ -152,6 +168,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         acc_range=args.acc_range,
         gyr_range=args.gyr_range * math.pi / 180.0,
         log=log,
+        extra={} if args.turns is None else {"turns": args.turns},
     )
     t0 = time.perf_counter()
     model = fit_model(args.method, rec, options)

@@ -565,7 +565,7 @@ def _build_multipos(mod: Any) -> MethodSpec:
         options.say(f"fitting multipos on {rec.n} samples ...")
         t0 = time.perf_counter()
         try:
-            acc_model, gyr_model = mod.fit_multipos_recording(rec)
+            acc_model, gyr_model = mod.fit_multipos_recording(rec, turn_times=options.extra.get("turns"))
         except ValueError as e:
             raise ModelError(f"multipos: {e}") from None
         elapsed = time.perf_counter() - t0
