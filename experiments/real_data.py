@@ -201,7 +201,7 @@ def fair_split_weights(across_turn: np.ndarray, n_turns: int) -> tuple[np.ndarra
     turn have weight 0 everywhere. Returns ``(gyr_w, turn_w, scored)``: ``scored[i]`` is the span
     row ``i`` leaves out (-1 for the turn rows)."""
     motions = np.flatnonzero(~np.asarray(across_turn))
-    J, M = len(across_turn), len(motions)
+    M = len(motions)
     gw = np.tile((~np.asarray(across_turn)).astype(float), (M + n_turns, 1))
     kw = np.ones((M + n_turns, n_turns))
     gw[np.arange(M), motions] = 0.0
@@ -346,9 +346,9 @@ def imucal_fair(quick: bool) -> tuple[dict, dict]:
             ca, cg = _online_fit(rec["acc"], rec["gyr"], segs, 1 / 102.4, Diag(np.ones(3), np.zeros(3)), Diag(np.ones(3), bg), sig)
             ea, eg, ek = _fixed_errors(ca, cg, score_d, known, plan)
             eo_a.append(ea)  # faces: every half scored is outside both folds' sequences
-            out = [j for j in range(len(plan["spans"])) if j not in train and (j % 2 == tf or j not in F)]
-            eo_g[out] = eg[out]  # motions never used by online are scored from the first fold
-        parts["online"].append((eo_a[0], eo_g, ek))  # acc and turns from the second transition fold
+            out = [j for j in range(len(plan["spans"])) if ((j % 2 == tf) if j in F else tf == 0)]
+            eo_g[out] = eg[out]  # face-to-face motions from the fold that left them out, the others from the first
+        parts["online"].append((eo_a[0], eo_g, ek))  # acc from the first transition fold, turns from the second
     sc = "held out: acc on the other halves of the faces, gyro on the motions between poses"
     rows["nominal conversion (as exported: m/s^2 / 9.80665, deg/s; gyro bias from the calibration halves)"] = _fair_row(parts["nominal"], "nothing fitted but the gyro bias; turns: held out")
     if have_imucal:

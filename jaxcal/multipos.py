@@ -498,8 +498,8 @@ def turn_init(b: Float[Array, "3"], acc: InverseAffine, turns: VerticalTurns, w:
     y = turns.y_int - b * turns.dt_sum[:, None]
     s = jnp.sign(sign * jnp.sum(y * u, -1))
     target = (turns.angle * s)[:, None] * u
-    yw, tw = y * w[:, None], target * w[:, None]
-    # G = T^T Y (Y^T Y)^-1 in row form: solve (Y^T W Y) G^T = Y^T W T
+    yw = y * w[:, None]
+    # weighted normal equations of min sum_k w_k |G y_k - target_k|^2: (Y^T W Y) G^T = Y^T W T
     return jnp.linalg.lstsq(yw.T @ y, yw.T @ target, rcond=1e-10)[0].T
 
 
