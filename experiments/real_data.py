@@ -171,7 +171,7 @@ def fair_split_plan(bounds: dict, fold: int) -> dict:
     calibration halves. A span with a turn inside (``across_turn``) is the turn, not a motion
     between poses: it is neither fitted nor scored as one."""
     turns = [(bounds[n][0], bounds[n][1] - 1) for n in TURNS]
-    rest_win = mp.rests_around(turns, REST_N, REST_GAP, 1 << 62)
+    rest_win = mp.rests_around(turns, REST_N, REST_GAP)
     statics = [(n, *bounds[n]) for n in FACES]
     statics += [(f"{n}_{w}", a, b) for n, win in zip(TURNS, rest_win) for w, (a, b) in zip(("before", "after"), win)]
     statics.sort(key=lambda x: x[1])

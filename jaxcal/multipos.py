@@ -252,12 +252,14 @@ class VerticalTurns(NamedTuple):
     seg_ok: Bool[Array, "K"]
 
 
-def rests_around(spans: np.ndarray, n: int, gap: int, n_samples: int) -> list[list[tuple[int, int]]]:
+def rests_around(spans: np.ndarray, n: int, gap: int, n_samples: int | None = None) -> list[list[tuple[int, int]]]:
     """Rest windows next to each span ``[a, b]``: ``n`` samples ending ``gap`` before ``a`` and ``n``
-    samples starting ``gap`` after ``b`` (clipped to the recording), as ``[start, stop)`` pairs."""
+    samples starting ``gap`` after ``b`` (clipped to the recording's ``n_samples`` when given), as
+    ``[start, stop)`` pairs."""
+    end = np.iinfo(np.int64).max if n_samples is None else n_samples
     out = []
     for a, b in np.asarray(spans, np.int64).reshape(-1, 2):
-        w = [(max(0, a - gap - n), max(0, a - gap)), (min(n_samples, b + gap + 1), min(n_samples, b + gap + 1 + n))]
+        w = [(max(0, a - gap - n), max(0, a - gap)), (min(end, b + gap + 1), min(end, b + gap + 1 + n))]
         out.append([(int(x), int(y)) for x, y in w if y > x])
     return out
 
@@ -280,22 +282,19 @@ def prepare_turns(
     t = np.asarray(t, np.float64)
     acc = np.asarray(acc, np.float64)
     gyr = np.asarray(gyr, np.float64)
-    sp = np.asarray(spans, np.int64).reshape(-1, 2)
+    sp = [(int(a), int(b)) for a, b in np.asarray(spans).reshape(-1, 2)]
     if len(rests) != len(sp):
         raise ValueError(f"rests: need one list of windows per turn ({len(sp)}), got {len(rests)}")
-    y_int, dt_sum, rest_acc, ok = [], [], [], []
+    rest_acc = []
     for (a, b), win in zip(sp, rests):
         idx = np.concatenate([np.arange(x, y) for x, y in win]) if win else np.zeros(0, np.int64)
         if idx.size == 0:
             raise ValueError(f"turn [{a}, {b}]: no rest samples to take the turning axis from")
-        y = 0.5 * (gyr[a:b] + gyr[a + 1 : b + 1]) if midpoint else gyr[a:b]
-        dt = np.diff(t[a : b + 1])
-        y_int.append((y * dt[:, None]).sum(0))
-        dt_sum.append(dt.sum())
         rest_acc.append(acc[idx].mean(0))
-        ok.append(gyr_limit is None or not np.any(np.abs(gyr[a : b + 1]) >= gyr_limit))
+    # the integrated rate sum(y dt) over a turn is the sum of its first-order block sums
+    out, sdt, ok = _segment_sums(t, acc, gyr, sp, midpoint, 8, gyr_limit)
     angle = 2 * np.pi * np.broadcast_to(np.asarray(revolutions, np.float64), (len(sp),))
-    return VerticalTurns(np.asarray(y_int), np.asarray(dt_sum), np.asarray(rest_acc), angle.copy(), np.asarray(ok))
+    return VerticalTurns(out["sy"].sum(1), sdt.sum(1), np.asarray(rest_acc), angle.copy(), ok)
 
 
 class DatasheetPrior(NamedTuple):

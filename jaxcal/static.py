@@ -115,7 +115,7 @@ def detect_static(
     mask[:n_init] = True
     if gyr is not None:  # applies to the initial period too
         g = np.asarray(gyr, np.float64)
-        still = mask | (np.arange(len(mask)) < n_init)
+        still = mask.copy()  # accelerometer-static, initial period included
         b = np.median(g[still], axis=0)
         dg = np.abs(np.diff(g, axis=0))[still[1:] & still[:-1]]
         sigma = float(np.linalg.norm(1.4826 * np.median(dg, axis=0) / np.sqrt(2.0)))
