@@ -251,3 +251,34 @@ def test_cli_diagnose_writes_report_and_rejects_bad_input(tmp_path):
     bad = tmp_path / "bad.npz"
     np.savez(bad, t=rec["t"], acc=rec["acc"])  # no reference motion
     assert main(["diagnose", str(bad), "--out", str(tmp_path / "x")]) == 2
+
+
+def test_cv_rss_ols_is_leave_one_block_out_least_squares():
+    """``fit="ols"``: every block predicted by ordinary least squares on the other blocks (a direct
+    lstsq per block, independent of the Gram bookkeeping); ``fit="gls"`` differs under AR noise."""
+    from jaxcal.diagnose.select import build_system, cv_rss, group_columns
+    from jaxcal.diagnose.whiten import ARModel
+
+    rng = np.random.default_rng(3)
+    n, q = 800, 12
+    x = rng.normal(size=(n, 3, q))
+    e = np.zeros((n, 3))
+    for i in range(1, n):  # AR(1) noise, so the whitened and the plain fits differ
+        e[i] = 0.9 * e[i - 1] + rng.normal(size=3)
+    z = x @ rng.normal(size=q) + e
+    rows = np.ones(n, bool)
+    rows[100:110] = False
+    block = np.repeat(np.arange(8), n // 8)
+    ars = [ARModel(np.array([0.9]), 1.0, 1, memory=1)] * 3
+    S = build_system(x, z, ars, rows, block)
+    cols = list(range(q))
+    tot = 0.0
+    for k in range(8):
+        tr, te = rows & (block != k), rows & (block == k)
+        th = np.linalg.lstsq(x[tr].reshape(-1, q), z[tr].ravel(), rcond=None)[0]
+        r = z[te].ravel() - x[te].reshape(-1, q) @ th
+        tot += r @ r
+    assert cv_rss(S, cols, whitened=False, fit="ols") == pytest.approx(tot, rel=1e-9)
+    assert abs(cv_rss(S, cols, whitened=False, fit="gls") / tot - 1) > 1e-4  # the whitened fit is another estimate
+    with pytest.raises(ValueError, match="fit"):
+        cv_rss(S, cols, fit="wls")

@@ -208,7 +208,8 @@ class SensorResult(NamedTuple):
     base_all: RefitResult  # baseline fitted on all fit rows
     final_all: RefitResult  # baseline + named effects, joint nonlinear refit on all fit rows
     fit_rows: np.ndarray
-    heldout_path: list[float]
+    heldout_path: list[float]  # held-out RMS, noise-model (GLS) fits, as effects are added
+    heldout_path_ols: list[float]  # the same with least-squares fits on the physical residual
     saturation: dict | None
     tau_lin: float
     ar_orders: list[int]
@@ -406,6 +407,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             decisions[c] = decisions[c]._replace(reason=decisions[c].reason + f"; confounded with {', '.join(confounded[c])}")
     order = [c for c in selected]
     path = heldout_rms_path(S, kind, s, order)
+    path_ols = heldout_rms_path(S, kind, s, order, fit="ols")
     if tau_lin != 0.0:
         # baseline held-out rms at zero time offset (the path starts at the linearisation point)
         # linearised at the zero-offset baseline fit: a random-walk noise model annihilates the bias
@@ -414,6 +416,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         xb, zb = linearize_baseline(kind, sd, beta_z, np.zeros(E.N_THETA[s]))
         Sb = build_system(xb, zb, ars, fit_rows, sd.block)
         path[0] = heldout_rms_path(Sb, kind, s, [])[0]
+        path_ols[0] = heldout_rms_path(Sb, kind, s, [], fit="ols")[0]
     theta0 = full[nb:] + theta_lin
     beta0 = beta + full[:nb]
     r_base, b_base = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
@@ -429,5 +432,5 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             d0 = decisions["time_offset"]
             return diagnose_sensor(kind, sd, cfg, n_tests, (tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0)), meas)
     return SensorResult(
-        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars],
+        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, path_ols, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars],
     )

@@ -353,13 +353,20 @@ class Decision(NamedTuple):
     reason: str
 
 
-def cv_rss(S: System, cols: list[int], whitened: bool = True) -> float:
-    """Leave-one-block-out held-out RSS: block ``k`` predicted by the fit on all other blocks."""
+def cv_rss(S: System, cols: list[int], whitened: bool = True, fit: str = "gls") -> float:
+    """Leave-one-block-out held-out RSS: block ``k`` predicted by the fit on all other blocks.
+
+    ``whitened``: score the whitened (True) or physical residual. ``fit``: ``"gls"`` fits on the
+    whitened normal equations (the noise model's estimate), ``"ols"`` on the physical ones (least
+    squares on the very RSS that the physical score measures)."""
+    if fit not in ("gls", "ols"):
+        raise ValueError(f"fit must be 'gls' or 'ols', got {fit!r}")
     G, g, zz = (S.G, S.g, S.zz) if whitened else (S.Gu, S.gu, S.zzu)
-    Gw, gw = S.G.sum(0), S.g.sum(0)
+    Gf, gf = (S.G, S.g) if fit == "gls" else (S.Gu, S.gu)
+    Gw, gw = Gf.sum(0), gf.sum(0)
     tot = 0.0
     for k in range(S.G.shape[0]):
-        th = _solve(Gw - S.G[k], gw - S.g[k], cols)
+        th = _solve(Gw - Gf[k], gw - gf[k], cols)
         tot += rss(G[k], g[k], float(zz[k]), cols, th)
     return tot
 
@@ -406,8 +413,9 @@ def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselec
     return selected, decisions, th, cols
 
 
-def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str]) -> list[float]:
-    """Cross-validated held-out RMS (physical units) as the effects of ``order`` are added."""
+def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str], fit: str = "gls") -> list[float]:
+    """Cross-validated held-out RMS (physical units) as the effects of ``order`` are added;
+    parameters fitted by ``fit`` (see :func:`cv_rss`)."""
     nb = E.N_BASE[kind]
     cols = list(range(nb))
     out = []
@@ -415,7 +423,7 @@ def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str]) -> lis
     for k in range(len(order) + 1):
         if k > 0:
             cols = cols + group_columns(kind, sensor, order[k - 1])
-        out.append(float(np.sqrt(max(cv_rss(S, cols, whitened=False), 0.0) / n)))
+        out.append(float(np.sqrt(max(cv_rss(S, cols, whitened=False, fit=fit), 0.0) / n)))
     return out
 
 
