@@ -517,17 +517,31 @@ def imucal_snapshot() -> dict:
     return out
 
 
+def _multipos_verdict(rec: dict) -> str:
+    """What ``jaxcal calibrate --method multipos`` says of a recording: the refusal, or that it ran."""
+    try:
+        mp.fit_multipos_recording(rec)
+    except ValueError as e:
+        return f"refused: {e}"
+    return "calibrated"
+
+
 def other_recordings() -> dict:
     out = {}
     tv = load_npz(DATA / "tumvi_room1_512_16" / "room1.npz")
     det = detect_static(tv["t"], tv["acc"], k=5, init_duration=1.0, window=0.5, min_duration=0.5)
     out["tumvi_room1_512_16"] = {
         "samples": int(len(tv["t"])), "static_intervals_found": int(len(det.intervals)),
-        "note": "hand-held, already intrinsically calibrated by TUM; too few distinct static poses for multipos",
+        "jaxcal calibrate --method multipos": _multipos_verdict(tv),
+        "note": "hand-held, already intrinsically calibrated by TUM: calibrated against its motion capture instead (below)",
     }
     fu = load_npz(DATA / "xio_fusion_sensor_data" / "sensor_data.npz")
-    # loop closure: the device ends where it started; gyro bias from the first second
-    for name, bias in (("as recorded", np.zeros(3)), ("bias from first second", fu["gyr"][:100].mean(0))):
+    # loop closure: the device ends where it started; gyro bias from the first second / from every rest
+    rests = detect_static(fu["t"], fu["acc"], k=3, init_duration=1.0, window=0.3, min_duration=0.3, gyr=fu["gyr"]).intervals
+    rest_bias = np.average(np.stack([fu["gyr"][a:b].mean(0) for a, b in rests]), axis=0, weights=rests[:, 1] - rests[:, 0])
+    fo = out.setdefault("xio_fusion_sensor_data", {})
+    for name, bias in (("as recorded", np.zeros(3)), ("bias from first second", fu["gyr"][:100].mean(0)),
+                       (f"bias from its {len(rests)} rests", rest_bias)):
         iv = np.array([[0, 100], [len(fu["t"]) - 100, len(fu["t"])]])
         d = mp.prepare(fu["t"], fu["acc"], fu["gyr"], iv, block=4)
         with jax.enable_x64(True):
@@ -535,8 +549,21 @@ def other_recordings() -> dict:
             rv = mp.block_rotvecs(jnp.eye(3), jnp.asarray(bias, jnp.float64), jnp.zeros((3, 3)), dj, jnp.zeros_like(dj.sy))
             rot = mp.carry_rotation(rv, jnp.ones_like(dj.sdt))[0]
             ang = float(np.degrees(np.linalg.norm(np.asarray(log_so3(rot)))))
-        out.setdefault("xio_fusion_sensor_data", {})[f"loop_closure_rotation_deg ({name})"] = ang
-    out["xio_fusion_sensor_data"]["note"] = "no static poses besides start and end: multipos not applicable; scored by return to the start attitude"
+        fo[f"loop_closure_rotation_deg ({name})"] = ang
+    fo["jaxcal calibrate --method multipos"] = _multipos_verdict(fu)
+    _, poses, _ = mp.detect_and_fit(fu["t"], fu["acc"], fu["gyr"], gyr_gate=True, check=False)  # the poses it would use
+    pa = np.stack([fu["acc"][a:b].mean(0) for a, b in poses])
+    tilt = np.degrees(np.arccos(np.clip(pa @ pa[0] / np.linalg.norm(pa, axis=1) / np.linalg.norm(pa[0]), -1, 1)))
+    flat = tilt < 5.0
+    mag = np.array([np.linalg.norm(fu["mag"][a:b].mean(0)) for a, b in poses])
+    worst = int(np.argmax(np.abs(mag / np.median(mag) - 1)))
+    fo["note"] = (f"{int(flat.sum())} of the {len(poses)} still periods multipos finds lie flat like the first (within 5 deg), "
+                  f"the other {int((~flat).sum())} are tilted by {', '.join(f'{x:.0f}' for x in tilt[~flat])} deg"
+                  f"{' and none is past 90 deg, so opposite directions never pair up to separate scale from bias' if tilt.max() < 90 else ''}"
+                  f"{'; every gyro bias read from rests makes the return to the start pose worse than as recorded (the bias is not constant)' if min(v for k, v in fo.items() if 'bias' in k) > fo['loop_closure_rotation_deg (as recorded)'] else ''}"
+                  ". The magnetometer is no "
+                  f"reference either: its field magnitude at the still period from {fu['t'][poses[worst][0]]:.1f} s is "
+                  f"{100 * (mag[worst] / np.median(mag) - 1):+.0f} % off the median of the others (a local disturbance)")
     return out
 
 

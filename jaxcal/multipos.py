@@ -649,6 +649,77 @@ def fit_multipos(
         return jax.tree_util.tree_map(np.asarray, fit)
 
 
+class Observability(NamedTuple):
+    """What the poses determine, at a fit (numpy). ``acc_sv`` (6,): singular values, relative to the
+    largest, of the accelerometer's first-order design ``[u * u, u]`` (rows: the calibrated
+    gravity direction ``u`` of each pose in use; columns: the three scales and three biases that
+    ``| |f| - 1 |`` sees; the cross-axis terms are held by the ridge). ``gyr_sv`` (9,): the same for
+    the gyro matrix ``G``, from the first-order rows ``[u_{j+1}]_x (Y_j^T kron I)`` of every usable
+    transition (``Y_j`` its integrated calibrated rate; the gravity direction is blind to the
+    rotation about itself) and ``Y_k^T kron I`` of every vertical turn. ``spread_deg``: largest
+    angle between a pose's raw (uncalibrated) output direction and their mean."""
+
+    acc_sv: np.ndarray
+    gyr_sv: np.ndarray
+    spread_deg: float
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def observability(data: MultiposData, fit: MultiposFit, acc_w: np.ndarray | None = None, gyr_w: np.ndarray | None = None,
+                  turns: VerticalTurns | None = None) -> Observability:
+    """:class:`Observability` of ``fit`` on ``data`` (weights as in :func:`fit_prepared`; a zero
+    leaves a pose or transition out). A relative singular value near 0 is a parameter combination
+    the recording does not determine: the fit put it wherever the start or the ridge left it."""
+    a, b = np.asarray(fit.acc.A), np.asarray(fit.acc.b)
+    g, bg = np.asarray(fit.gyr.A), np.asarray(fit.gyr.b)
+    P = len(data.pose_acc)
+    aw = np.ones(P) if acc_w is None else np.asarray(acc_w)
+    gw = (np.ones(P - 1) if gyr_w is None else np.asarray(gyr_w)) * np.asarray(data.seg_ok)
+    f = (np.asarray(data.pose_acc) - b) @ a.T
+    u = f / np.linalg.norm(f, axis=1, keepdims=True)
+    ua = u[aw > 0]
+    acc_sv = np.linalg.svd(np.concatenate([ua * ua, ua], 1), compute_uv=False)
+    raw = np.asarray(data.pose_acc)[aw > 0]  # as the sensor reads them: a bad fit cannot spread them
+    raw = raw / np.linalg.norm(raw, axis=1, keepdims=True)
+    mean = raw.mean(0) / max(np.linalg.norm(raw.mean(0)), 1e-12)
+    spread = float(np.degrees(np.arccos(np.clip(raw @ mean, -1.0, 1.0))).max())
+    rows = [np.zeros((1, 9))]
+    sy, sdt = np.asarray(data.sy).sum(1), np.asarray(data.sdt).sum(1)
+    for j in np.flatnonzero(gw > 0):
+        y = (sy[j] - bg * sdt[j]) @ g.T
+        rows.append(_skew(u[j + 1]) @ np.kron(y[None, :], np.eye(3)))
+    if turns is not None:
+        for k in np.flatnonzero(np.asarray(turns.seg_ok)):
+            y = (np.asarray(turns.y_int[k]) - bg * float(turns.dt_sum[k])) @ g.T
+            rows.append(np.kron(y[None, :], np.eye(3)))
+    gyr_sv = np.linalg.svd(np.concatenate(rows), compute_uv=False)
+    rel = lambda x: x / x[0] if x[0] > 0 else x  # noqa: E731
+    return Observability(rel(acc_sv), rel(gyr_sv), spread)
+
+
+def check_observable(obs: Observability, tol: float = 0.02) -> None:
+    """Raise ``ValueError`` (saying what is missing and what to record) when a relative singular
+    value of :class:`Observability` is below ``tol``: a calibration with undetermined parameters
+    would be written as if it were one."""
+    msgs = []
+    n_acc = int((obs.acc_sv < tol).sum())
+    if n_acc:
+        msgs.append(f"the static poses leave {n_acc} of the accelerometer's 6 scale/bias combinations undetermined "
+                    f"(relative singular values {np.array2string(obs.acc_sv, precision=3)}; their raw directions lie "
+                    f"within {obs.spread_deg:.1f} deg of their mean): hold the IMU still in at least six directions, "
+                    "e.g. on each of its six faces")
+    n_gyr = int((obs.gyr_sv < tol).sum())
+    if n_gyr:
+        msgs.append(f"the rotations between the poses leave {n_gyr} of the gyro matrix's 9 combinations undetermined "
+                    f"(relative singular values {np.array2string(obs.gyr_sv, precision=3)}): turn the IMU about each of "
+                    "its axes between poses, or add whole turns about the vertical (--turns)")
+    if msgs:
+        raise ValueError(f"multipos cannot calibrate this recording: {'; '.join(msgs)} (tolerance {tol})")
+
+
 def turns_from_times(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, times: Any, rest: float = 1.0,
                      gyr_limit: float | None = None) -> VerticalTurns:
     """:class:`VerticalTurns` from turn start/end times ``times`` (K, 2) in seconds; each turn's axis
@@ -687,6 +758,7 @@ def detect_and_fit(
     gyr_limit: float | None = None,
     turn_times: Any = None,
     gyr_gate: bool = False,
+    check: bool = True,
 ) -> tuple[MultiposFit, np.ndarray, float]:
     """imu_tk's procedure: for each threshold multiplier ``k`` detect the static intervals and
     fit the accelerometer; keep the ``k`` with the smallest mean squared ``|f| - 1`` residual
@@ -694,6 +766,7 @@ def detect_and_fit(
     (K, 2) s, optional: whole turns about the vertical (:func:`turns_from_times`), unlabelled.
     ``gyr_gate``: also require a quiet gyro at rest (:func:`~jaxcal.static.detect_static`), which
     keeps turns about the vertical out of the poses; off by default (imu_tk's detector).
+    ``check``: raise ``ValueError`` when the poses do not determine the fit (:func:`check_observable`).
 
     ``init_duration`` defaults to the first run of low acceleration variance: the first 10 % of
     the recording, capped at 30 s, is a safe guess only if the user rested there; pass it.
@@ -718,6 +791,9 @@ def detect_and_fit(
     det = best[1]
     turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=gyr_limit)
     fit = fit_multipos(t, acc, gyr, det.intervals, config, gyr_limit=gyr_limit, turns=turns)
+    if check:
+        data = prepare(t, acc, gyr, det.intervals, gyr_limit=gyr_limit, midpoint=config.midpoint)
+        check_observable(observability(data, fit, turns=turns))
     return fit, det.intervals, det.k
 
 

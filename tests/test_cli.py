@@ -318,6 +318,18 @@ def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
     assert code == 2 and "START < END" in err
 
 
+@pytest.mark.skipif(not _method_available("multipos"), reason="jaxcal.multipos not in this build")
+def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
+    """x-io's Fusion recording rests only flat on a table (gravity within a few deg of one
+    direction between the rests): multipos exits 2 and says what is undetermined, writing nothing."""
+    from pathlib import Path
+
+    rec_path = Path(__file__).resolve().parents[1] / "data" / "xio_fusion_sensor_data" / "sensor_data.npz"
+    code, _, err = run(capsys, "calibrate", "--method", "multipos", rec_path, "--out", tmp_path / "mp.npz")
+    assert code == 2 and "cannot calibrate" in err and "six directions" in err, err
+    assert not (tmp_path / "mp.npz").exists()
+
+
 def test_import_command(tmp_path, capsys):
     from pathlib import Path
 
