@@ -565,7 +565,7 @@ def _build_multipos(mod: Any) -> MethodSpec:
         options.say(f"fitting multipos on {rec.n} samples ...")
         t0 = time.perf_counter()
         try:
-            acc_model, gyr_model = mod.fit_multipos_recording(rec, turn_times=options.extra.get("turns"))
+            acc_model, gyr_model, q = mod.fit_multipos_recording(rec, turn_times=options.extra.get("turns"), summary=True)
         except ValueError as e:
             raise ModelError(f"multipos: {e}") from None
         elapsed = time.perf_counter() - t0
@@ -573,8 +573,13 @@ def _build_multipos(mod: Any) -> MethodSpec:
         if not state:
             raise ModelError("multipos: no sensor could be calibrated")
         options.say(f"fitting multipos ... done in {elapsed:.1f} s")
+        gm = "-" if q["gyr_median_deg"] is None else f"{q['gyr_median_deg']:.3f} deg"
+        turns = f", worst turn {q['turn_max_deg']:.3f} deg" if "turn_max_deg" in q else ""
+        options.say(f"multipos: {q['n_poses']} poses, {q['n_transitions']} usable transitions; in-sample |f| - 1 g RMS "
+                    f"{q['acc_rms_mg']:.3f} mg, carried-gravity median {gm}{turns}; least determined combination "
+                    f"(relative singular value): acc {q['acc_sv_min']:.2f}, gyro {q['gyr_sv_min']:.2f}")
         sensors = tuple(s for s in SENSORS if s in state)
-        return Fitted(sensors, state, {"units": _units(rec, sensors), "fit_seconds": elapsed})
+        return Fitted(sensors, state, {"units": _units(rec, sensors), "fit_seconds": elapsed, "fit_quality": q})
 
     return MethodSpec(
         "multipos", fit, _apply_affine_state, False,

@@ -717,7 +717,7 @@ def check_observable(obs: Observability, tol: float = 0.02) -> None:
                     f"(relative singular values {np.array2string(obs.gyr_sv, precision=3)}): turn the IMU about each of "
                     "its axes between poses, or add whole turns about the vertical (--turns)")
     if msgs:
-        raise ValueError(f"multipos cannot calibrate this recording: {'; '.join(msgs)} (tolerance {tol})")
+        raise ValueError(f"cannot calibrate this recording: {'; '.join(msgs)} (tolerance {tol})")
 
 
 def turns_from_times(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, times: Any, rest: float = 1.0,
@@ -787,7 +787,7 @@ def detect_and_fit(
         if best is None or score < best[0]:
             best = (score, det)
     if best is None:
-        raise ValueError("multipos: fewer than 9 static poses found for every threshold; record more poses")
+        raise ValueError("fewer than 9 static poses found for every threshold; record more poses")
     det = best[1]
     turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=gyr_limit)
     fit = fit_multipos(t, acc, gyr, det.intervals, config, gyr_limit=gyr_limit, turns=turns)
@@ -797,7 +797,29 @@ def detect_and_fit(
     return fit, det.intervals, det.k
 
 
-def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), **kwargs) -> tuple[Affine, Affine]:
+def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None) -> dict:
+    """In-sample quality of a fit on its own poses, for the user to judge a calibration: pose and
+    usable-transition counts, RMS ``| |f| - 1 |`` (mg), median carried-gravity angle (deg), the
+    worst vertical-turn error (deg, with ``turns``), and the smallest relative singular values of
+    :func:`observability` (near 0: a combination the poses barely determine). In-sample figures
+    are optimistic; ``leave_poses_out`` gives held-out ones."""
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
+        eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
+        et = None if turns is None else np.asarray(vertical_turn_errors(
+            fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
+    obs = observability(data, fit, turns=turns)
+    out = {"n_poses": int(len(ea)), "n_transitions": int(len(eg)), "acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),
+           "gyr_median_deg": float(np.degrees(np.median(eg))) if len(eg) else None,
+           "acc_sv_min": float(obs.acc_sv.min()), "gyr_sv_min": float(obs.gyr_sv.min())}
+    if et is not None:
+        out["turn_max_deg"] = float(np.degrees(et.max()))
+    return out
+
+
+def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), *, summary: bool = False,
+                           **kwargs) -> tuple[Affine, Affine] | tuple[Affine, Affine, dict]:
     """Calibrate a :class:`~jaxcal.recording.Recording` (or recording dict) by multi-position
     self-calibration. Needs ``acc`` and ``gyr``; no labels, no datasheet values.
 
@@ -805,6 +827,7 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     (``y = S x + b``, ``x`` in g and rad/s, ``y`` in the recording's units). The g-sensitivity
     option is not representable as an ``Affine`` and is off here. ``kwargs`` go to
     :func:`detect_and_fit` (here ``gyr_gate`` defaults to True; ``turn_times`` adds vertical turns).
+    ``summary``: also return :func:`fit_summary` of the fit (in-sample quality, observability).
     """
     get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
     t, acc, gyr = get("t"), get("acc"), get("gyr")
@@ -814,8 +837,13 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
         raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
     kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), get("gyr_unit") or "LSB"))
     kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
-    fit, _, _ = detect_and_fit(t, acc, gyr, config, **kwargs)
-    return to_affine(fit.acc), to_affine(fit.gyr)
+    fit, iv, _ = detect_and_fit(t, acc, gyr, config, **kwargs)
+    if not summary:
+        return to_affine(fit.acc), to_affine(fit.gyr)
+    gl, tt = kwargs.get("gyr_limit"), kwargs.get("turn_times")
+    data = prepare(t, acc, gyr, iv, gyr_limit=gl, midpoint=config.midpoint)
+    turns = None if tt is None else turns_from_times(t, acc, gyr, tt, gyr_limit=gl)
+    return to_affine(fit.acc), to_affine(fit.gyr), fit_summary(data, fit, turns)
 
 
 class HeldOut(NamedTuple):

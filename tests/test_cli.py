@@ -277,6 +277,10 @@ def test_multipos_through_cli_on_xsens(tmp_path, capsys):
         pytest.skip("data/imu_tk_xsens_multipos not present")
     code, _, err = run(capsys, "calibrate", "--method", "multipos", rec_path, "--out", tmp_path / "mp.npz")
     assert code == 0, err
+    import re
+
+    m = re.search(r"multipos: (\d+) poses, (\d+) usable transitions; in-sample \|f\| - 1 g RMS ([0-9.]+) mg", err)
+    assert m and int(m.group(1)) >= 36 and float(m.group(3)) < 0.5, err  # README: 38 poses; held out 0.15 mg
     code, _, err = run(capsys, "apply", tmp_path / "mp.npz", rec_path, "--out", tmp_path / "cal.npz")
     assert code == 0, err
     with np.load(tmp_path / "cal.npz") as z:

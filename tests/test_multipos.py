@@ -187,6 +187,10 @@ def test_fit_multipos_recording_contract(sim):
     np.testing.assert_allclose(gyr_model.b, B_GYR, atol=0.5)
     with pytest.raises(ValueError, match="gyr"):
         mp.fit_multipos_recording({"t": t, "acc": acc})
+    *_, q = mp.fit_multipos_recording(rec, init_duration=8.0, window=0.5, summary=True)
+    # 24 simulated poses, 23 transitions; 4 LSB noise over >= 50 samples of 16000 LSB/g: ~0.04 mg per pose mean
+    assert (q["n_poses"], q["n_transitions"]) == (24, 23), q
+    assert q["acc_rms_mg"] < 0.2 and q["gyr_median_deg"] < 0.05 and min(q["acc_sv_min"], q["gyr_sv_min"]) > 0.1, q
 
 
 def test_observability_refuses_what_the_poses_do_not_determine(sim):
