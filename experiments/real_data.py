@@ -913,8 +913,12 @@ def main(quick: bool) -> None:
             if k.startswith("jaxcal") or k.startswith("IN-SAMPLE"):
                 continue
             paired = blk.get("info", {}).get("paired", {}) if k == blk.get("info", {}).get("paired_peer") else {}
-            tie = lambda s_, f_: (f" Paired over the items (see above) every jaxcal row is a {', '.join(sorted({c[s_][f_] for c in paired.values()}))} with it."  # noqa: E731
-                                  if paired else "")
+            def tie(s_, f_, paired=paired):
+                if not paired:
+                    return ""
+                n_by = {v: sum(c[s_][f_] == v for c in paired.values()) for v in ("better", "tie", "worse")}
+                return (" Paired over the items (see above), the held-out jaxcal rows against it: "
+                        + ", ".join(f"{n} {v}" for v, n in n_by.items() if n) + ".")
             if best_turn is not None and "turn_mean_deg" in v and v["turn_mean_deg"] < best_turn:
                 ins = {n: r["turn_mean_deg"] for n, r in rows.items() if n.startswith("IN-SAMPLE") and "turn_mean_deg" in r}
                 ik = next((n for n in ins if "imucal" in n), None)

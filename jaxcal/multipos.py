@@ -797,19 +797,21 @@ def detect_and_fit(
     return fit, det.intervals, det.k
 
 
-def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None) -> dict:
+def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None,
+                obs: Observability | None = None) -> dict:
     """In-sample quality of a fit on its own poses, for the user to judge a calibration: pose and
     usable-transition counts, RMS ``| |f| - 1 |`` (mg), median carried-gravity angle (deg), the
     worst vertical-turn error (deg, with ``turns``), and the smallest relative singular values of
     :func:`observability` (near 0: a combination the poses barely determine). In-sample figures
-    are optimistic; ``leave_poses_out`` gives held-out ones."""
+    are optimistic; ``leave_poses_out`` gives held-out ones. ``obs``: :func:`observability` of the
+    same fit, if already computed."""
     with jax.enable_x64(True):
         d = jax.tree_util.tree_map(jnp.asarray, data)
         ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
         eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
         et = None if turns is None else np.asarray(vertical_turn_errors(
             fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
-    obs = observability(data, fit, turns=turns)
+    obs = observability(data, fit, turns=turns) if obs is None else obs
     out = {"n_poses": int(len(ea)), "n_transitions": int(len(eg)), "acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),
            "gyr_median_deg": float(np.degrees(np.median(eg))) if len(eg) else None,
            "acc_sv_min": float(obs.acc_sv.min()), "gyr_sv_min": float(obs.gyr_sv.min())}
@@ -837,13 +839,17 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
         raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
     kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), get("gyr_unit") or "LSB"))
     kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
-    fit, iv, _ = detect_and_fit(t, acc, gyr, config, **kwargs)
-    if not summary:
-        return to_affine(fit.acc), to_affine(fit.gyr)
+    check = kwargs.pop("check", True)
+    fit, iv, _ = detect_and_fit(t, acc, gyr, config, check=False, **kwargs)
     gl, tt = kwargs.get("gyr_limit"), kwargs.get("turn_times")
     data = prepare(t, acc, gyr, iv, gyr_limit=gl, midpoint=config.midpoint)
     turns = None if tt is None else turns_from_times(t, acc, gyr, tt, gyr_limit=gl)
-    return to_affine(fit.acc), to_affine(fit.gyr), fit_summary(data, fit, turns)
+    obs = observability(data, fit, turns=turns)
+    if check:
+        check_observable(obs)
+    if not summary:
+        return to_affine(fit.acc), to_affine(fit.gyr)
+    return to_affine(fit.acc), to_affine(fit.gyr), fit_summary(data, fit, turns, obs)
 
 
 class HeldOut(NamedTuple):
