@@ -9,7 +9,7 @@ form the intervals. imu_tk scans ``k`` (1, 2, ..., 10) and keeps the ``k`` whose
 the smallest accelerometer calibration residual; :func:`threshold_scan` returns the candidates and
 the caller (e.g. :func:`jaxcal.multipos.fit_multipos_recording`) makes that choice.
 
-:func:`moving_variance` is pure JAX; turning a mask into intervals has data-dependent output size
+:func:`moving_mean` and :func:`moving_variance` are pure JAX; turning a mask into intervals has data-dependent output size
 and is plain numpy. Intervals are ``(K, 2)`` int arrays of ``[start, stop)`` sample indices.
 """
 
@@ -34,8 +34,21 @@ class StaticDetection(NamedTuple):
 
 
 @jax.jit
-def _cumsum0(x: Float[Array, "N 3"]) -> Float[Array, "N+1 3"]:
+def _cumsum0(x: Float[Array, "N ..."]) -> Float[Array, "N+1 ..."]:
     return jnp.concatenate([jnp.zeros_like(x[:1]), jnp.cumsum(x, axis=0)], axis=0)
+
+
+def moving_mean(x: Float[Array, "N ..."], half: int) -> Float[Array, "N ..."]:
+    """Mean over the centred window ``[n - half, n + half]`` (clipped at the ends), along axis 0,
+    from cumulative sums."""
+    x = jnp.asarray(x)
+    n = x.shape[0]
+    c = _cumsum0(x)
+    idx = jnp.arange(n)
+    lo = jnp.clip(idx - half, 0, n)
+    hi = jnp.clip(idx + half + 1, 0, n)
+    cnt = (hi - lo).astype(x.dtype).reshape((n,) + (1,) * (x.ndim - 1))
+    return (c[hi] - c[lo]) / cnt
 
 
 def moving_variance(x: Float[Array, "N 3"], half: int) -> Float[Array, "N 3"]:
@@ -45,14 +58,8 @@ def moving_variance(x: Float[Array, "N 3"], half: int) -> Float[Array, "N 3"]:
     """
     x = jnp.asarray(x)
     x = x - jnp.mean(x, axis=0)
-    n = x.shape[0]
-    c1, c2 = _cumsum0(x), _cumsum0(x * x)
-    idx = jnp.arange(n)
-    lo = jnp.clip(idx - half, 0, n)
-    hi = jnp.clip(idx + half + 1, 0, n)
-    cnt = (hi - lo)[:, None].astype(x.dtype)
-    mean = (c1[hi] - c1[lo]) / cnt
-    return jnp.maximum((c2[hi] - c2[lo]) / cnt - mean * mean, 0.0)
+    mean = moving_mean(x, half)
+    return jnp.maximum(moving_mean(x * x, half) - mean * mean, 0.0)
 
 
 def intervals_from_mask(mask: np.ndarray, min_samples: int) -> np.ndarray:
@@ -119,11 +126,9 @@ def detect_static(
         b = np.median(g[still], axis=0)
         dg = np.abs(np.diff(g, axis=0))[still[1:] & still[:-1]]
         sigma = float(np.linalg.norm(1.4826 * np.median(dg, axis=0) / np.sqrt(2.0)))
-        dev = np.linalg.norm(g - b, axis=1)
-        c = np.concatenate([[0.0], np.cumsum(dev)])
-        idx = np.arange(len(dev))
-        lo, hi = np.maximum(idx - half, 0), np.minimum(idx + half + 1, len(dev))
-        mask &= (c[hi] - c[lo]) / (hi - lo) < gyr_k * max(sigma, 1e-12)
+        with jax.enable_x64(True):
+            dev = np.asarray(moving_mean(jnp.asarray(np.linalg.norm(g - b, axis=1)), half))
+        mask &= dev < gyr_k * max(sigma, 1e-12)
     iv = intervals_from_mask(mask, max(1, int(round(min_duration / dt))))
     return StaticDetection(iv, var_mag, threshold, float(k))
 
