@@ -45,7 +45,7 @@ import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Bool, Float
 
-from jaxcal.rotation import exp_so3, log_so3
+from jaxcal.rotation import exp_so3, hat, log_so3
 from jaxcal.sensor import Affine
 from jaxcal.static import detect_static
 
@@ -641,11 +641,15 @@ def fit_multipos(
 ) -> MultiposFit:
     """:func:`prepare` + :func:`fit_prepared` in float64 (optional vertical ``turns``, see
     :func:`prepare_turns`); returns numpy-backed arrays."""
+    return _fit_numpy(prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block), config, turns)
+
+
+def _fit_numpy(data: MultiposData, config: MultiposConfig, turns: VerticalTurns | None) -> MultiposFit:
+    """:func:`fit_prepared` (jitted, float64) on numpy-prepared data; numpy-backed result."""
     with jax.enable_x64(True):
-        data = jax.tree_util.tree_map(
-            jnp.asarray, prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block))
+        d = jax.tree_util.tree_map(jnp.asarray, data)
         tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
-        fit = jax.jit(fit_prepared, static_argnums=1)(data, config, None, None, None, None, tv)
+        fit = jax.jit(fit_prepared, static_argnums=1)(d, config, None, None, None, None, tv)
         return jax.tree_util.tree_map(np.asarray, fit)
 
 
@@ -662,10 +666,6 @@ class Observability(NamedTuple):
     acc_sv: np.ndarray
     gyr_sv: np.ndarray
     spread_deg: float
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def observability(data: MultiposData, fit: MultiposFit, acc_w: np.ndarray | None = None, gyr_w: np.ndarray | None = None,
@@ -688,9 +688,11 @@ def observability(data: MultiposData, fit: MultiposFit, acc_w: np.ndarray | None
     spread = float(np.degrees(np.arccos(np.clip(raw @ mean, -1.0, 1.0))).max())
     rows = [np.zeros((1, 9))]
     sy, sdt = np.asarray(data.sy).sum(1), np.asarray(data.sdt).sum(1)
+    with jax.enable_x64(True):
+        u_next = np.asarray(hat(jnp.asarray(u[1:])))
     for j in np.flatnonzero(gw > 0):
         y = (sy[j] - bg * sdt[j]) @ g.T
-        rows.append(_skew(u[j + 1]) @ np.kron(y[None, :], np.eye(3)))
+        rows.append(u_next[j] @ np.kron(y[None, :], np.eye(3)))
     if turns is not None:
         for k in np.flatnonzero(np.asarray(turns.seg_ok)):
             y = (np.asarray(turns.y_int[k]) - bg * float(turns.dt_sum[k])) @ g.T
@@ -771,6 +773,14 @@ def detect_and_fit(
     ``init_duration`` defaults to the first run of low acceleration variance: the first 10 % of
     the recording, capped at 30 s, is a safe guess only if the user rested there; pass it.
     """
+    fit, det, data, turns = _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gyr_limit, turn_times, gyr_gate)
+    if check:
+        check_observable(observability(data, fit, turns=turns))
+    return fit, det.intervals, det.k
+
+
+def _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gyr_limit, turn_times, gyr_gate):
+    """:func:`detect_and_fit`'s work: ``(fit, detection, prepared data, turns)``."""
     t = np.asarray(t, np.float64)
     if init_duration is None:
         init_duration = min(30.0, 0.1 * (t[-1] - t[0]))
@@ -790,11 +800,8 @@ def detect_and_fit(
         raise ValueError("fewer than 9 static poses found for every threshold; record more poses")
     det = best[1]
     turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=gyr_limit)
-    fit = fit_multipos(t, acc, gyr, det.intervals, config, gyr_limit=gyr_limit, turns=turns)
-    if check:
-        data = prepare(t, acc, gyr, det.intervals, gyr_limit=gyr_limit, midpoint=config.midpoint)
-        check_observable(observability(data, fit, turns=turns))
-    return fit, det.intervals, det.k
+    data = prepare(t, acc, gyr, det.intervals, gyr_limit=gyr_limit, midpoint=config.midpoint)
+    return _fit_numpy(data, config, turns), det, data, turns
 
 
 def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None,
@@ -840,11 +847,9 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), get("gyr_unit") or "LSB"))
     kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
     check = kwargs.pop("check", True)
-    fit, iv, _ = detect_and_fit(t, acc, gyr, config, check=False, **kwargs)
-    gl, tt = kwargs.get("gyr_limit"), kwargs.get("turn_times")
-    data = prepare(t, acc, gyr, iv, gyr_limit=gl, midpoint=config.midpoint)
-    turns = None if tt is None else turns_from_times(t, acc, gyr, tt, gyr_limit=gl)
-    obs = observability(data, fit, turns=turns)
+    defaults = {k: v for k, v in detect_and_fit.__kwdefaults__.items() if k != "check"}
+    fit, _, data, turns = _detect_fit(t, acc, gyr, config, **(defaults | kwargs))
+    obs = observability(data, fit, turns=turns) if check or summary else None
     if check:
         check_observable(obs)
     if not summary:
