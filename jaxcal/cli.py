@@ -129,6 +129,11 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
         help="whole turns about the vertical (e.g. turned flat on a table), start-end in seconds; their axes "
         "are read from the accelerometer at the rests around them (no labels)",
     )
+    m.add_argument(
+        "--partial", action="store_true",
+        help="when the poses do not determine every combination, fit only those they do and leave the rest "
+        "as recorded (recordings in g and rad/s; an undetermined gyroscope is not calibrated) instead of refusing",
+    )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -168,7 +173,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         acc_range=args.acc_range,
         gyr_range=args.gyr_range * math.pi / 180.0,
         log=log,
-        extra={} if args.turns is None else {"turns": args.turns},
+        extra=({} if args.turns is None else {"turns": args.turns}) | ({"partial": True} if args.partial else {}),
     )
     t0 = time.perf_counter()
     model = fit_model(args.method, rec, options)

@@ -565,7 +565,8 @@ def _build_multipos(mod: Any) -> MethodSpec:
         options.say(f"fitting multipos on {rec.n} samples ...")
         t0 = time.perf_counter()
         try:
-            acc_model, gyr_model, q = mod.fit_multipos_recording(rec, turn_times=options.extra.get("turns"), summary=True)
+            acc_model, gyr_model, q = mod.fit_multipos_recording(
+                rec, turn_times=options.extra.get("turns"), partial=options.extra.get("partial", False), summary=True)
         except ValueError as e:
             raise ModelError(f"multipos: {e}") from None
         elapsed = time.perf_counter() - t0
@@ -578,6 +579,8 @@ def _build_multipos(mod: Any) -> MethodSpec:
         options.say(f"multipos: {q['n_poses']} poses, {q['n_transitions']} usable transitions; in-sample |f| - 1 g RMS "
                     f"{q['acc_rms_mg']:.3f} mg, carried-gravity median {gm}{turns}; least determined combination "
                     f"(relative singular value): acc {q['acc_sv_min']:.2f}, gyro {q['gyr_sv_min']:.2f}")
+        for s, what in q.get("partial", {}).items():
+            options.say(f"multipos --partial: {s}: {what}")
         sensors = tuple(s for s in SENSORS if s in state)
         return Fitted(sensors, state, {"units": _units(rec, sensors), "fit_seconds": elapsed, "fit_quality": q})
 

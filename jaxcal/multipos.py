@@ -56,7 +56,9 @@ class MultiposConfig(NamedTuple):
     also fit ``G_s``. ``midpoint``: midpoint rates (else the left sample, zero-order hold).
     ``max_steps``: LM iteration cap. ``prior``: optional :class:`DatasheetPrior` (MAP on scales
     and cross-axis terms; ``None``, the default, uses the data alone). ``acc_ridge``: weak ridge on
-    the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns it off)."""
+    the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns it off). ``acc_fit``:
+    ``"full"`` (:func:`fit_acc`) or ``"determined"`` (:func:`fit_acc_determined`: move the
+    recording's own units only along the combinations the poses determine; 9-parameter model)."""
 
     acc_model: str = "9"
     gyro_bias: str = "static"
@@ -65,6 +67,7 @@ class MultiposConfig(NamedTuple):
     max_steps: int = 100
     prior: Any = None
     acc_ridge: float = 1e-2
+    acc_fit: str = "full"
 
 
 class InverseAffine(NamedTuple):
@@ -414,6 +417,34 @@ def fit_acc(
     return InverseAffine(A=a / s0[None, :], b=c0 + s0 * b), cost
 
 
+def fit_acc_determined(
+    pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], tol: float = 0.02, steps: int = 20
+) -> tuple[InverseAffine, Array]:
+    """Accelerometer fit for poses that do not determine every parameter: start from the
+    recording's own units (``A = I``, ``b = 0``; the recording must already be in g) and take
+    Gauss-Newton steps on the 9-parameter model (``A = L diag(s)``, ``L`` unit lower triangular)
+    restricted to the combinations whose relative singular value in the weighted Jacobian of
+    ``|A (m_i - b)| - 1`` exceeds ``tol`` (truncated SVD). The others stay as recorded: the
+    minimum-norm correction the data support. Returns the calibration and the number of
+    combinations moved (of 9)."""
+    w = jnp.sqrt(w)
+
+    def res(th):
+        a = _lower(th[:3]) * th[3:6][None, :]
+        return w * (jnp.linalg.norm((pose_acc - th[6:9]) @ a.T, axis=-1) - 1.0)
+
+    def step(_, carry):
+        th, _ = carry
+        u, sv, vt = jnp.linalg.svd(jax.jacfwd(res)(th), full_matrices=False)
+        keep = sv > tol * sv[0]
+        inv = jnp.where(keep, 1.0 / jnp.where(keep, sv, 1.0), 0.0)
+        return th - vt.T @ (inv * (u.T @ res(th))), jnp.sum(keep)
+
+    th0 = jnp.concatenate([jnp.zeros(3), jnp.ones(3), jnp.zeros(3)]).astype(pose_acc.dtype)
+    th, n = jax.lax.fori_loop(0, steps, step, (th0, jnp.asarray(0)))
+    return InverseAffine(_lower(th[:3]) * th[3:6][None, :], th[6:9]), n
+
+
 # ------------------------------------------------------------------------------ gyroscope
 
 
@@ -583,7 +614,11 @@ def fit_prepared(
     acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
     gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
     gyr_w = gyr_w * data.seg_ok.astype(dtype)
-    acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior, config.acc_ridge)
+    if config.acc_fit == "determined":
+        acc, _ = fit_acc_determined(data.pose_acc, acc_w)
+        acc_cost = jnp.sum(acc_w * acc_norm_errors(acc, data.pose_acc) ** 2)
+    else:
+        acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior, config.acc_ridge)
     f = (data.pose_acc - acc.b) @ acc.A.T
     u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
     # gyro bias from the static intervals (of the poses in use)
@@ -828,7 +863,7 @@ def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | Non
 
 
 def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), *, summary: bool = False,
-                           **kwargs) -> tuple[Affine, Affine] | tuple[Affine, Affine, dict]:
+                           partial: bool = False, **kwargs) -> tuple[Any, Any] | tuple[Any, Any, dict]:
     """Calibrate a :class:`~jaxcal.recording.Recording` (or recording dict) by multi-position
     self-calibration. Needs ``acc`` and ``gyr``; no labels, no datasheet values.
 
@@ -837,6 +872,11 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     option is not representable as an ``Affine`` and is off here. ``kwargs`` go to
     :func:`detect_and_fit` (here ``gyr_gate`` defaults to True; ``turn_times`` adds vertical turns).
     ``summary``: also return :func:`fit_summary` of the fit (in-sample quality, observability).
+
+    When the poses do not determine every combination (:func:`check_observable`) this raises,
+    unless ``partial``: then, for a recording already in g and rad/s, the accelerometer is fitted
+    by :func:`fit_acc_determined` (only the determined combinations move) and an undetermined
+    gyroscope is left as recorded (its model is ``None``); the summary's ``partial`` says which.
     """
     get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
     t, acc, gyr = get("t"), get("acc"), get("gyr")
@@ -844,17 +884,38 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
         raise ValueError("multipos needs both 'acc' and 'gyr'")
     if config.g_sensitivity:
         raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
-    kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), get("gyr_unit") or "LSB"))
+    units = (get("acc_unit") or "LSB", get("gyr_unit") or "LSB")
+    if partial and units != ("g", "rad/s"):
+        raise ValueError(f"partial keeps what the poses do not determine as recorded, which needs a recording in "
+                         f"g and rad/s; this one is in {units[0]} and {units[1]}")
+    kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), units[1]))
     kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
     check = kwargs.pop("check", True)
     defaults = {k: v for k, v in detect_and_fit.__kwdefaults__.items() if k != "check"}
     fit, _, data, turns = _detect_fit(t, acc, gyr, config, **(defaults | kwargs))
-    obs = observability(data, fit, turns=turns) if check or summary else None
-    if check:
-        check_observable(obs)
+    obs = observability(data, fit, turns=turns) if check or summary or partial else None
+    kept = {}
+    if partial:
+        tol = 0.02
+        if (obs.acc_sv < tol).any():
+            fit = _fit_numpy(data, config._replace(acc_fit="determined"), turns)
+            with jax.enable_x64(True):
+                n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
+            kept["acc"] = f"{9 - n} of 9 combinations left as recorded, {n} fitted"
+            obs = observability(data, fit, turns=turns)
+        if (obs.gyr_sv < tol).any():
+            kept["gyr"] = "left as recorded (the rotations determine too little)"
+    elif check:
+        try:
+            check_observable(obs)
+        except ValueError as e:
+            raise ValueError(f"{e}; or calibrate only what the poses determine (partial=True, --partial)") from None
+    if "gyr" in kept:
+        fit = fit._replace(gyr=InverseAffine(np.eye(3), np.zeros(3)))
+    models = (to_affine(fit.acc), None if "gyr" in kept else to_affine(fit.gyr))
     if not summary:
-        return to_affine(fit.acc), to_affine(fit.gyr)
-    return to_affine(fit.acc), to_affine(fit.gyr), fit_summary(data, fit, turns, obs)
+        return models
+    return (*models, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))
 
 
 class HeldOut(NamedTuple):

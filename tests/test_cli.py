@@ -324,14 +324,20 @@ def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
 
 @pytest.mark.skipif(not _method_available("multipos"), reason="jaxcal.multipos not in this build")
 def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
-    """x-io's Fusion recording rests only flat on a table (gravity within a few deg of one
-    direction between the rests): multipos exits 2 and says what is undetermined, writing nothing."""
+    """x-io's Fusion recording (hand-held) is still only flat or tilted < 90 deg: multipos exits 2
+    and says what is undetermined, writing nothing; with --partial it writes an accelerometer-only
+    model and says what it left as recorded."""
     from pathlib import Path
 
     rec_path = Path(__file__).resolve().parents[1] / "data" / "xio_fusion_sensor_data" / "sensor_data.npz"
     code, _, err = run(capsys, "calibrate", "--method", "multipos", rec_path, "--out", tmp_path / "mp.npz")
-    assert code == 2 and "cannot calibrate" in err and "six directions" in err, err
+    assert code == 2 and "cannot calibrate" in err and "six directions" in err and "--partial" in err, err
     assert not (tmp_path / "mp.npz").exists()
+    # --partial: the accelerometer moves only along what the poses determine, the gyro stays as recorded
+    code, _, err = run(capsys, "calibrate", "--method", "multipos", "--partial", rec_path, "--out", tmp_path / "mp.npz")
+    assert code == 0 and "left as recorded" in err, err
+    model = load_model(tmp_path / "mp.npz")
+    assert model.sensors == ("acc",) and "gyr" in model.meta["fit_quality"]["partial"], model.meta
 
 
 def test_import_command(tmp_path, capsys):

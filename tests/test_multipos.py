@@ -215,6 +215,53 @@ def test_observability_refuses_what_the_poses_do_not_determine(sim):
     assert (obs2.acc_sv < 0.02).sum() >= 2 and (obs2.gyr_sv < 0.02).sum() >= 2, obs2  # linearised at a poor fit: a lower bound
 
 
+def _rot_y(deg):
+    return _exp_np(np.array([0.0, np.radians(deg), 0.0]))
+
+
+def test_fit_acc_determined_moves_only_what_the_poses_see():
+    """A recording in g with a small error left (true applied ``A = diag(s)``, bias ``b``):
+    from poses in every direction the truncated Gauss-Newton fit moves all 9 combinations and
+    recovers the truth; from poses in the x-z plane only (the y axis never sees gravity) it fits
+    x and z and leaves the y scale and bias and the y cross terms as recorded (1 and 0)."""
+    s, b = np.array([1.004, 0.996, 1.006]), np.array([5e-3, -3e-3, 8e-3])
+    raw = lambda f: f / s + b  # noqa: E731  (x = diag(s) (y - b))
+    rots = np.asarray(random_rotation(jax.random.PRNGKey(7), (20,)), np.float64)
+    planar = np.stack([_rot_y(a) for a in range(0, 360, 30)])
+    with jax.enable_x64(True):
+        for poses, n_true in ((rots, 9), (planar, 5)):
+            f = np.einsum("pji,j->pi", poses, [0.0, 0.0, 1.0])
+            m = jnp.asarray(raw(f / np.linalg.norm(f, axis=1, keepdims=True)))  # float32 rotations: |f| = 1 exactly
+            cal, n = mp.fit_acc_determined(m, jnp.ones(len(m)))
+            a, bb = np.asarray(cal.A), np.asarray(cal.b)
+            assert int(n) == n_true
+            assert np.abs(np.asarray(mp.acc_norm_errors(cal, m))).max() < 1e-9
+            if n_true == 9:
+                np.testing.assert_allclose(a, np.diag(s), atol=1e-8)
+                np.testing.assert_allclose(bb, b, atol=1e-8)
+            else:  # x, z and the x-z cross term recovered (up to the y bias left in |f|: b_y^2 / 2 ~ 5e-6);
+                # the y combinations untouched
+                np.testing.assert_allclose([a[0, 0], a[2, 2], bb[0], bb[2], a[2, 0]], [s[0], s[2], b[0], b[2], 0.0], atol=1e-5)
+                assert abs(a[1, 1] - 1.0) < 1e-4 and abs(bb[1]) < 1e-4 and abs(a[1, 0]) < 1e-4 and abs(a[2, 1]) < 1e-4, (a, bb)
+
+
+def test_partial_recording_fit_keeps_the_undetermined_as_recorded():
+    """Poses that differ only by turns about the vertical, converted to g and rad/s with the true
+    calibration: ``partial=True`` calibrates instead of refusing, leaves the undetermined gyro
+    uncalibrated (None) and the accelerometer's x/y combinations at 1 and 0; a recording in LSB
+    is refused (nothing to keep as recorded)."""
+    rots = np.stack([_exp_np(np.array([0.0, 0.0, 0.7 * j])) for j in range(14)])
+    t, acc, gyr = simulate(None, rots=rots)
+    rec = {"t": t, "acc": acc, "gyr": gyr, "acc_unit": "LSB", "gyr_unit": "LSB"}
+    with pytest.raises(ValueError, match="g and rad/s"):
+        mp.fit_multipos_recording(rec, init_duration=8.0, window=0.5, partial=True)
+    phys = {"t": t, "acc": (acc - B_ACC) @ A_ACC.T, "gyr": (gyr - B_GYR) @ A_GYR.T, "acc_unit": "g", "gyr_unit": "rad/s"}
+    acc_model, gyr_model, q = mp.fit_multipos_recording(phys, init_duration=8.0, window=0.5, partial=True, summary=True)
+    assert gyr_model is None and set(q["partial"]) == {"acc", "gyr"}, q
+    np.testing.assert_allclose(acc_model.S[:2, :2], np.eye(2), atol=1e-3)
+    np.testing.assert_allclose(acc_model.b[:2], 0.0, atol=1e-3)
+
+
 # ------------------------------------------------------------------ known rotations and datasheet prior
 
 
