@@ -158,6 +158,8 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--max-epochs and --patience must be at least 1")
     if not 0.0 < args.val_fraction < 1.0:
         raise UsageError(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
+    if args.method != "multipos" and (args.turns is not None or args.partial):
+        raise UsageError(f"--turns and --partial are multipos options, not {args.method}'s")
     get_method(args.method)  # unavailable method: fail before reading data
     rec = load_recording(args.recording)
     log = _progress(args)

@@ -58,7 +58,8 @@ class MultiposConfig(NamedTuple):
     and cross-axis terms; ``None``, the default, uses the data alone). ``acc_ridge``: weak ridge on
     the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns it off). ``acc_fit``:
     ``"full"`` (:func:`fit_acc`) or ``"determined"`` (:func:`fit_acc_determined`: move the
-    recording's own units only along the combinations the poses determine; 9-parameter model)."""
+    recording's own units only along the combinations the poses determine; 9-parameter model).
+    ``gyr_fit``: ``"full"`` or ``"none"`` (the gyroscope stays as recorded: ``G = I``, ``b = 0``)."""
 
     acc_model: str = "9"
     gyro_bias: str = "static"
@@ -68,6 +69,7 @@ class MultiposConfig(NamedTuple):
     prior: Any = None
     acc_ridge: float = 1e-2
     acc_fit: str = "full"
+    gyr_fit: str = "full"
 
 
 class InverseAffine(NamedTuple):
@@ -619,6 +621,9 @@ def fit_prepared(
         acc_cost = jnp.sum(acc_w * acc_norm_errors(acc, data.pose_acc) ** 2)
     else:
         acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior, config.acc_ridge)
+    if config.gyr_fit == "none":
+        zero = jnp.zeros((3, 3), dtype)
+        return MultiposFit(acc, InverseAffine(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)), zero, acc_cost, jnp.asarray(0.0, dtype))
     f = (data.pose_acc - acc.b) @ acc.A.T
     u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
     # gyro bias from the static intervals (of the poses in use)
@@ -898,21 +903,21 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     if partial:
         tol = 0.02
         if (obs.acc_sv < tol).any():
-            fit = _fit_numpy(data, config._replace(acc_fit="determined"), turns)
+            config = config._replace(acc_fit="determined")
             with jax.enable_x64(True):
                 n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
             kept["acc"] = f"{9 - n} of 9 combinations left as recorded, {n} fitted"
-            obs = observability(data, fit, turns=turns)
         if (obs.gyr_sv < tol).any():
+            config = config._replace(gyr_fit="none")
             kept["gyr"] = "left as recorded (the rotations determine too little)"
+        if kept:
+            fit = _fit_numpy(data, config, turns)
     elif check:
         try:
             check_observable(obs)
         except ValueError as e:
             raise ValueError(f"{e}; or calibrate only what the poses determine (partial=True, --partial)") from None
-    if "gyr" in kept:
-        fit = fit._replace(gyr=InverseAffine(np.eye(3), np.zeros(3)))
-    models = (to_affine(fit.acc), None if "gyr" in kept else to_affine(fit.gyr))
+    models = (to_affine(fit.acc), None if config.gyr_fit == "none" else to_affine(fit.gyr))
     if not summary:
         return models
     return (*models, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))

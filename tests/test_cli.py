@@ -338,6 +338,8 @@ def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
     assert code == 0 and "left as recorded" in err, err
     model = load_model(tmp_path / "mp.npz")
     assert model.sensors == ("acc",) and "gyr" in model.meta["fit_quality"]["partial"], model.meta
+    code, _, err = run(capsys, "calibrate", "--method", "linear", "--partial", rec_path, "--out", tmp_path / "x.npz")
+    assert code == 2 and "multipos options" in err, err
 
 
 def test_import_command(tmp_path, capsys):
