@@ -419,8 +419,12 @@ def fit_acc(
     return InverseAffine(A=a / s0[None, :], b=c0 + s0 * b), cost
 
 
+#: relative singular value below which a parameter combination counts as undetermined by the poses
+OBSERVABLE_TOL = 0.02
+
+
 def fit_acc_determined(
-    pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], tol: float = 0.02, steps: int = 20
+    pose_acc: Float[Array, "P 3"], w: Float[Array, "P"], tol: float = OBSERVABLE_TOL, steps: int = 20
 ) -> tuple[InverseAffine, Array]:
     """Accelerometer fit for poses that do not determine every parameter: start from the
     recording's own units (``A = I``, ``b = 0``; the recording must already be in g) and take
@@ -613,6 +617,9 @@ def fit_prepared(
     """
     P = data.pose_acc.shape[0]
     dtype = data.pose_acc.dtype
+    if config.acc_fit not in ("full", "determined") or config.gyr_fit not in ("full", "none"):
+        raise ValueError(f"acc_fit must be 'full' or 'determined' and gyr_fit 'full' or 'none', got "
+                         f"{config.acc_fit!r} and {config.gyr_fit!r}")
     acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
     gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
     gyr_w = gyr_w * data.seg_ok.astype(dtype)
@@ -742,7 +749,7 @@ def observability(data: MultiposData, fit: MultiposFit, acc_w: np.ndarray | None
     return Observability(rel(acc_sv), rel(gyr_sv), spread)
 
 
-def check_observable(obs: Observability, tol: float = 0.02) -> None:
+def check_observable(obs: Observability, tol: float = OBSERVABLE_TOL) -> None:
     """Raise ``ValueError`` (saying what is missing and what to record) when a relative singular
     value of :class:`Observability` is below ``tol``: a calibration with undetermined parameters
     would be written as if it were one."""
@@ -901,16 +908,16 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     obs = observability(data, fit, turns=turns) if check or summary or partial else None
     kept = {}
     if partial:
-        tol = 0.02
-        if (obs.acc_sv < tol).any():
+        if (obs.acc_sv < OBSERVABLE_TOL).any():
             config = config._replace(acc_fit="determined")
             with jax.enable_x64(True):
                 n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
             kept["acc"] = f"{9 - n} of 9 combinations left as recorded, {n} fitted"
-        if (obs.gyr_sv < tol).any():
+            fit = _fit_numpy(data, config, turns)
+            obs = observability(data, fit, turns=turns)  # the gyro design, linearised at the new gravity directions
+        if (obs.gyr_sv < OBSERVABLE_TOL).any():
             config = config._replace(gyr_fit="none")
             kept["gyr"] = "left as recorded (the rotations determine too little)"
-        if kept:
             fit = _fit_numpy(data, config, turns)
     elif check:
         try:

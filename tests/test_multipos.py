@@ -260,6 +260,8 @@ def test_partial_recording_fit_keeps_the_undetermined_as_recorded():
     assert gyr_model is None and set(q["partial"]) == {"acc", "gyr"}, q
     np.testing.assert_allclose(acc_model.S[:2, :2], np.eye(2), atol=1e-3)
     np.testing.assert_allclose(acc_model.b[:2], 0.0, atol=1e-3)
+    with pytest.raises(ValueError, match="gyr_fit"):
+        mp.fit_multipos_recording(phys, mp.MultiposConfig(gyr_fit="nope"), init_duration=8.0, window=0.5)
 
 
 # ------------------------------------------------------------------ known rotations and datasheet prior
