@@ -595,7 +595,7 @@ def fusion(n_folds: int | None) -> tuple[dict, dict]:
     determine. Rows: as recorded, ``--partial`` (held out), the unchecked full fit (held out);
     info: the refusal, the tilts, the return-to-start closure, the magnetometer check."""
     fu = load_npz(DATA / "xio_fusion_sensor_data" / "sensor_data.npz")
-    fit, poses, k = mp.detect_and_fit(fu["t"], fu["acc"], fu["gyr"], gyr_gate=True, check=False)  # the poses calibrate uses
+    _, poses, k = mp.detect_and_fit(fu["t"], fu["acc"], fu["gyr"], gyr_gate=True, check=False)  # the poses calibrate uses
     data = mp.prepare(fu["t"], fu["acc"], fu["gyr"], poses)
     ident = mp.InverseAffine(np.eye(3), np.zeros(3))
     rows = {"as recorded (the file's units; nothing fitted)": _score_fixed(ident, ident, data)}
