@@ -941,8 +941,7 @@ def main(quick: bool) -> None:
                "without the labels, so both numbers show only how exact the fit is); jaxcal's other rows also fit the "
                "motions between poses, so they leave the turns a compromise."]
         if to:
-            md += ["", f"What the face labels are worth on the motions: with the same information (faces and turns) and no "
-                   f"labels, jaxcal's gyro scores {to['gyr_mean_deg']:.3f} / {to['gyr_median_deg']:.3f} deg (mean / median) "
+            md += ["", f"Same information as imucal (faces and turns), no labels: jaxcal's gyro scores {to['gyr_mean_deg']:.3f} / {to['gyr_median_deg']:.3f} deg (mean / median) "
                    f"against imucal's {imc[0]['gyr_mean_deg']:.3f} / {imc[0]['gyr_median_deg']:.3f} deg; the rows above add "
                    "the motions between poses, which imucal cannot use (compare them in the paired table below)."]
         md += _paired_table(im_info.get("paired", {}), "imucal", "the 12 scored half-faces",
