@@ -1,0 +1,104 @@
+"""Multi-position self-calibration (Tedaldi, Pretto, Menegatti, ICRA 2014; the imu_tk method).
+
+No labels and no datasheet values are needed: the user holds the IMU still in many orientations
+and turns it by hand in between.
+
+* **Accelerometer** (from the static poses): ``f = A (y - b)`` with ``|f| = 1 g`` in every pose.
+  ``model="9"`` is imu_tk's 9 parameters, ``A = T diag(k)`` with ``T`` unit lower-triangular
+  (3 non-orthogonality terms), 3 scales, 3 biases. ``model="12"`` frees all of ``A`` (12
+  parameters); the ``|f|`` residual is blind to a rotation ``A -> Q A`` (3 gauge directions), so
+  the antisymmetric part of ``A`` is pinned by a residual ``A - A^T``, which costs nothing at the
+  optimum. The two therefore reach the same ``|f|`` fit: they differ in the frame they report.
+* **Gyroscope** (from the motions between poses): ``w = G (y_g - b_g) [- G_s f]`` with a full
+  ``G`` (9 parameters: scales and misalignment w.r.t. the accelerometer frame), the bias ``b_g``
+  from the static intervals, and optionally the g-sensitivity ``G_s`` (9 more). The rates are
+  integrated between consecutive static poses, ``R = prod_n Exp(w_n dt_n)`` (midpoint rate,
+  uneven ``dt`` kept; samples are grouped in blocks whose rotation vector is the second-order
+  Magnus sum, precomputed once from the raw data, see :class:`MultiposData`; blocks of 8 change
+  the Xsens angles by < 0.001 deg against the per-sample product), and under the physical convention (``CONVENTIONS.md``) the gravity
+  direction measured in pose ``j`` must be carried onto pose ``j + 1``: ``R^T u_j = u_{j+1}``.
+
+Optional extra gyro rows: sections of known rotation (:class:`KnownRotations`, e.g. a closed
+turn, ``R_known = I``) and whole turns about the vertical (:class:`VerticalTurns`, e.g. the IMU
+turned flat on a table, as in Ferraris' protocol, but unlabelled: the turning axis is the gravity
+direction the calibrated accelerometer measures at the rests next to the turn).
+
+Everything is initialised from the data: the accelerometer from an axis-aligned ellipsoid fit of
+the pose means (fallback: per-axis min/max), the gyro scale from a grid search over
+``G = s I`` (both signs, 1e-7 .. 10 unit/LSB) of the same residual. Both fits are
+``optimistix.LevenbergMarquardt`` least squares on pure residual functions, run in float64 and
+vmappable over per-pose / per-transition weights (used for leave-poses-out folds).
+
+Modules, in the order data flows through them (every name is re-exported here):
+
+* ``data``: :func:`prepare` (numpy: a recording plus static intervals to padded block sums),
+  :func:`prepare_known`, :func:`prepare_turns`;
+* ``acc``: :func:`fit_acc`, :func:`fit_acc_determined`, :class:`DatasheetPrior`;
+* ``gyro``: the gyro residuals and scores (:func:`gyr_residuals`, :func:`gyro_angle_errors`);
+* ``fit``: :func:`fit_prepared` (pure JAX, vmappable over weights), :func:`fit_multipos`;
+* ``observe``: :func:`observability`, :func:`check_observable`;
+* ``detect``: :func:`fit_multipos_recording` (interval detection with imu_tk's threshold scan,
+  then the fit and the check; forward-model :class:`~jaxcal.sensor.Affine` pairs for
+  ``jaxcal calibrate --method multipos``);
+* ``heldout``: :func:`leave_poses_out`.
+"""
+
+from __future__ import annotations
+
+from jaxcal.multipos.data import (  # noqa: F401
+    InverseAffine,
+    MultiposData,
+    prepare,
+    KnownRotations,
+    prepare_known,
+    VerticalTurns,
+    rests_around,
+    prepare_turns,
+    turns_from_times,
+)
+from jaxcal.multipos.acc import (  # noqa: F401
+    DatasheetPrior,
+    MPU6050_PRIOR,
+    prior_rows,
+    acc_residuals,
+    ellipsoid_init,
+    fit_acc,
+    fit_acc_determined,
+    acc_norm_errors,
+)
+from jaxcal.multipos.gyro import (  # noqa: F401
+    carry_rotation,
+    cofactor,
+    block_rotvecs,
+    known_rotation_residuals,
+    vertical_turn_residuals,
+    vertical_turn_errors,
+    turn_init,
+    gyr_residuals,
+    gyro_angle_errors,
+    known_rotation_errors,
+)
+from jaxcal.multipos.observe import (  # noqa: F401
+    OBSERVABLE_TOL,
+    Observability,
+    observability,
+    check_observable,
+)
+from jaxcal.multipos.fit import (  # noqa: F401
+    MultiposConfig,
+    MultiposFit,
+    fit_prepared,
+    fit_multipos,
+    to_affine,
+)
+from jaxcal.multipos.detect import (  # noqa: F401
+    default_gyr_limit,
+    detect_and_fit,
+    fit_summary,
+    fit_multipos_recording,
+)
+from jaxcal.multipos.heldout import (  # noqa: F401
+    HeldOut,
+    fold_ids,
+    leave_poses_out,
+)

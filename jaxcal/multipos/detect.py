@@ -1,0 +1,160 @@
+"""Multipos on a whole recording: detect the static poses (imu_tk's threshold scan), fit, check
+what the poses determine, summarise the fit (``jaxcal calibrate --method multipos``)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
+from jaxcal.multipos.data import MultiposData, VerticalTurns, prepare, turns_from_times
+from jaxcal.multipos.fit import MultiposConfig, MultiposFit, _fit_numpy, to_affine
+from jaxcal.multipos.gyro import gyro_angle_errors, vertical_turn_errors
+from jaxcal.multipos.observe import OBSERVABLE_TOL, Observability, check_observable, observability
+from jaxcal.static import detect_static
+
+
+def default_gyr_limit(gyr: np.ndarray, unit: str) -> float | None:
+    """Saturation limit for raw counts: 32767 for signed, 65535 for unsigned 16-bit data."""
+    if unit != "LSB":
+        return None
+    return 32767.0 if np.min(gyr) < 0 else 65535.0
+
+
+def detect_and_fit(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    config: MultiposConfig = MultiposConfig(),
+    *,
+    init_duration: float | None = None,
+    ks: tuple[float, ...] = tuple(range(1, 11)),
+    window: float = 1.0,
+    min_duration: float = 1.0,
+    gyr_limit: float | None = None,
+    turn_times: Any = None,
+    gyr_gate: bool = False,
+    check: bool = True,
+) -> tuple[MultiposFit, np.ndarray, float]:
+    """imu_tk's procedure: for each threshold multiplier ``k`` detect the static intervals and
+    fit the accelerometer; keep the ``k`` with the smallest mean squared ``|f| - 1`` residual
+    (at least 9 poses), then fit the gyroscope. Returns ``(fit, intervals, k)``. ``turn_times``
+    (K, 2) s, optional: whole turns about the vertical (:func:`turns_from_times`), unlabelled.
+    ``gyr_gate``: also require a quiet gyro at rest (:func:`~jaxcal.static.detect_static`), which
+    keeps turns about the vertical out of the poses; off by default (imu_tk's detector).
+    ``check``: raise ``ValueError`` when the poses do not determine the fit (:func:`check_observable`).
+
+    ``init_duration`` defaults to the first run of low acceleration variance: the first 10 % of
+    the recording, capped at 30 s, is a safe guess only if the user rested there; pass it.
+    """
+    fit, det, data, turns = _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gyr_limit, turn_times, gyr_gate)
+    if check:
+        check_observable(observability(data, fit, turns=turns))
+    return fit, det.intervals, det.k
+
+
+def _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gyr_limit, turn_times, gyr_gate):
+    """:func:`detect_and_fit`'s work: ``(fit, detection, prepared data, turns)``."""
+    t = np.asarray(t, np.float64)
+    if init_duration is None:
+        init_duration = min(30.0, 0.1 * (t[-1] - t[0]))
+    best = None
+    for k in ks:
+        det = detect_static(t, acc, k=k, init_duration=init_duration, window=window, min_duration=min_duration,
+                            gyr=gyr if gyr_gate else None)
+        if len(det.intervals) < 9:
+            continue
+        with jax.enable_x64(True):
+            pa = jnp.asarray(np.stack([np.asarray(acc, np.float64)[a:b].mean(0) for a, b in det.intervals]))
+            _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps, None, config.acc_ridge)
+        score = float(cost) / len(pa)
+        if best is None or score < best[0]:
+            best = (score, det)
+    if best is None:
+        raise ValueError("fewer than 9 static poses found for every threshold; record more poses")
+    det = best[1]
+    turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=gyr_limit)
+    data = prepare(t, acc, gyr, det.intervals, gyr_limit=gyr_limit, midpoint=config.midpoint)
+    return _fit_numpy(data, config, turns), det, data, turns
+
+
+def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None,
+                obs: Observability | None = None) -> dict:
+    """In-sample quality of a fit on its own poses, for the user to judge a calibration: pose and
+    usable-transition counts, RMS ``| |f| - 1 |`` (mg), median carried-gravity angle (deg), the
+    worst vertical-turn error (deg, with ``turns``), and the smallest relative singular values of
+    :func:`observability` (near 0: a combination the poses barely determine). In-sample figures
+    are optimistic; ``leave_poses_out`` gives held-out ones. ``obs``: :func:`observability` of the
+    same fit, if already computed."""
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
+        eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
+        et = None if turns is None else np.asarray(vertical_turn_errors(
+            fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
+    obs = observability(data, fit, turns=turns) if obs is None else obs
+    out = {"n_poses": int(len(ea)), "n_transitions": int(len(eg)), "acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),
+           "gyr_median_deg": float(np.degrees(np.median(eg))) if len(eg) else None,
+           "acc_sv_min": float(obs.acc_sv.min()), "gyr_sv_min": float(obs.gyr_sv.min())}
+    if et is not None:
+        out["turn_max_deg"] = float(np.degrees(et.max()))
+    return out
+
+
+def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), *, summary: bool = False,
+                           partial: bool = False, **kwargs) -> tuple[Any, Any] | tuple[Any, Any, dict]:
+    """Calibrate a :class:`~jaxcal.recording.Recording` (or recording dict) by multi-position
+    self-calibration. Needs ``acc`` and ``gyr``; no labels, no datasheet values.
+
+    Returns the forward models ``(acc_model, gyr_model)`` as :class:`~jaxcal.sensor.Affine`
+    (``y = S x + b``, ``x`` in g and rad/s, ``y`` in the recording's units). The g-sensitivity
+    option is not representable as an ``Affine`` and is off here. ``kwargs`` go to
+    :func:`detect_and_fit` (here ``gyr_gate`` defaults to True; ``turn_times`` adds vertical turns).
+    ``summary``: also return :func:`fit_summary` of the fit (in-sample quality, observability).
+
+    When the poses do not determine every combination (:func:`check_observable`) this raises,
+    unless ``partial``: then, for a recording already in g and rad/s, the accelerometer is fitted
+    by :func:`fit_acc_determined` (only the determined combinations move) and an undetermined
+    gyroscope is left as recorded (its model is ``None``); the summary's ``partial`` says which.
+    """
+    get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
+    t, acc, gyr = get("t"), get("acc"), get("gyr")
+    if acc is None or gyr is None:
+        raise ValueError("multipos needs both 'acc' and 'gyr'")
+    if config.g_sensitivity:
+        raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
+    units = (get("acc_unit") or "LSB", get("gyr_unit") or "LSB")
+    if partial and units != ("g", "rad/s"):
+        raise ValueError(f"partial keeps what the poses do not determine as recorded, which needs a recording in "
+                         f"g and rad/s; this one is in {units[0]} and {units[1]}")
+    kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), units[1]))
+    kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
+    check = kwargs.pop("check", True)
+    defaults = {k: v for k, v in detect_and_fit.__kwdefaults__.items() if k != "check"}
+    fit, _, data, turns = _detect_fit(t, acc, gyr, config, **(defaults | kwargs))
+    obs = observability(data, fit, turns=turns) if check or summary or partial else None
+    kept = {}
+    if partial:
+        if (obs.acc_sv < OBSERVABLE_TOL).any():
+            config = config._replace(acc_fit="determined")
+            with jax.enable_x64(True):
+                n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
+            kept["acc"] = f"{9 - n} of 9 combinations left as recorded, {n} fitted"
+            fit = _fit_numpy(data, config, turns)
+            obs = observability(data, fit, turns=turns)  # the gyro design, linearised at the new gravity directions
+        if (obs.gyr_sv < OBSERVABLE_TOL).any():
+            config = config._replace(gyr_fit="none")
+            kept["gyr"] = "left as recorded (the rotations determine too little)"
+            fit = _fit_numpy(data, config, turns)
+    elif check:
+        try:
+            check_observable(obs)
+        except ValueError as e:
+            raise ValueError(f"{e}; or calibrate only what the poses determine (partial=True, --partial)") from None
+    models = (to_affine(fit.acc), None if config.gyr_fit == "none" else to_affine(fit.gyr))
+    if not summary:
+        return models
+    return (*models, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))

@@ -1,0 +1,162 @@
+"""The multipos fit on prepared data: accelerometer, then gyroscope (pure, vmappable over weights)."""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float
+
+from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
+from jaxcal.multipos.data import InverseAffine, KnownRotations, MultiposData, VerticalTurns, prepare
+from jaxcal.multipos.gyro import _calibrated_acc_sums, gyr_residuals, turn_init
+from jaxcal.sensor import Affine
+
+
+class MultiposConfig(NamedTuple):
+    """Options. ``acc_model``: ``"9"`` or ``"12"``. ``gyro_bias``: ``"static"`` (mean over the
+    static intervals in use) or ``"init"`` (the first interval only, as imu_tk). ``g_sensitivity``:
+    also fit ``G_s``. ``midpoint``: midpoint rates (else the left sample, zero-order hold).
+    ``max_steps``: LM iteration cap. ``prior``: optional :class:`DatasheetPrior` (MAP on scales
+    and cross-axis terms; ``None``, the default, uses the data alone). ``acc_ridge``: weak ridge on
+    the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns it off). ``acc_fit``:
+    ``"full"`` (:func:`fit_acc`) or ``"determined"`` (:func:`fit_acc_determined`: move the
+    recording's own units only along the combinations the poses determine; 9-parameter model).
+    ``gyr_fit``: ``"full"`` or ``"none"`` (the gyroscope stays as recorded: ``G = I``, ``b = 0``)."""
+
+    acc_model: str = "9"
+    gyro_bias: str = "static"
+    g_sensitivity: bool = False
+    midpoint: bool = True
+    max_steps: int = 100
+    prior: Any = None
+    acc_ridge: float = 1e-2
+    acc_fit: str = "full"
+    gyr_fit: str = "full"
+
+
+class MultiposFit(NamedTuple):
+    """Result: ``acc``/``gyr`` calibrations (applied direction), ``gsens`` (3, 3) ((rad/s)/g, zero
+    unless fitted), and the final residual norms of the two least-squares problems."""
+
+    acc: InverseAffine
+    gyr: InverseAffine
+    gsens: Float[Array, "3 3"]
+    acc_cost: Float[Array, ""]
+    gyr_cost: Float[Array, ""]
+
+
+def fit_prepared(
+    data: MultiposData,
+    config: MultiposConfig = MultiposConfig(),
+    acc_w: Float[Array, "P"] | None = None,
+    gyr_w: Float[Array, "J"] | None = None,
+    known: KnownRotations | None = None,
+    known_w: Float[Array, "K"] | None = None,
+    turns: VerticalTurns | None = None,
+    turns_w: Float[Array, "T"] | None = None,
+) -> MultiposFit:
+    """Accelerometer then gyroscope fit on prepared data (pure; vmappable over the weights).
+
+    ``acc_w`` (per pose) and ``gyr_w`` (per transition) default to ones; a zero leaves that pose
+    or transition out (leave-poses-out folds). Unusable transitions (``seg_ok``) are always left
+    out. ``known`` (optional, :func:`prepare_known`): sections of known rotation, each adding the
+    3 rows ``log_so3(R_known^T R_int)`` to the gyro fit (weights ``known_w``, default ones); they
+    observe what gravity carrying cannot, e.g. the scale about a vertical turning axis.
+    ``turns`` (optional, :func:`prepare_turns`): whole turns about the vertical, unlabelled, each
+    adding the 3 rows of :func:`vertical_turn_residuals` (weights ``turns_w``); with at least three
+    turns the gyro fit also starts from :func:`turn_init` when that beats the scalar grid start.
+    ``config.prior``: optional datasheet prior (MAP). Call under ``jax.enable_x64(True)`` for raw
+    counts (as :func:`fit_multipos` does).
+    """
+    P = data.pose_acc.shape[0]
+    dtype = data.pose_acc.dtype
+    if config.acc_fit not in ("full", "determined") or config.gyr_fit not in ("full", "none"):
+        raise ValueError(f"acc_fit must be 'full' or 'determined' and gyr_fit 'full' or 'none', got "
+                         f"{config.acc_fit!r} and {config.gyr_fit!r}")
+    acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
+    gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
+    gyr_w = gyr_w * data.seg_ok.astype(dtype)
+    if config.acc_fit == "determined":
+        acc, _ = fit_acc_determined(data.pose_acc, acc_w)
+        acc_cost = jnp.sum(acc_w * acc_norm_errors(acc, data.pose_acc) ** 2)
+    else:
+        acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior, config.acc_ridge)
+    if config.gyr_fit == "none":
+        zero = jnp.zeros((3, 3), dtype)
+        return MultiposFit(acc, InverseAffine(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)), zero, acc_cost, jnp.asarray(0.0, dtype))
+    f = (data.pose_acc - acc.b) @ acc.A.T
+    u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
+    # gyro bias from the static intervals (of the poses in use)
+    if config.gyro_bias == "init":
+        bg = data.pose_gyr[0]
+    else:
+        wn = acc_w * data.pose_n
+        bg = jnp.sum(wn[:, None] * data.pose_gyr, 0) / jnp.sum(wn)
+    fsum = _calibrated_acc_sums(acc, data)
+    if known is not None:
+        known_w = jnp.ones(known.R.shape[0], dtype) if known_w is None else known_w
+        kfsum = _calibrated_acc_sums(acc, known)
+        extra = (known, known_w, kfsum)
+    else:
+        extra = (None, None, None)
+    if turns is not None:
+        turns_w = jnp.ones(turns.angle.shape[0], dtype) if turns_w is None else turns_w
+        textra = (turns, turns_w, acc)
+    else:
+        textra = (None, None, None)
+    # scale initialisation: grid over G = s I, both signs (4 per decade)
+    grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
+    zero = jnp.zeros(18 if config.g_sensitivity else 9, dtype)
+
+    def cost_at(s, th):
+        return jnp.sum(gyr_residuals(th, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w, *extra, None, *textra)) ** 2)
+
+    costs = jnp.nan_to_num(jax.vmap(lambda s: cost_at(s, zero))(grid), nan=jnp.inf)
+    s0 = grid[jnp.argmin(costs)]
+    theta0 = zero
+    if turns is not None and turns.angle.shape[0] >= 3:  # label-free Ferraris start, if it is better
+        gc = turn_init(bg, acc, turns, turns_w * turns.seg_ok.astype(dtype), jnp.sign(s0))
+        th_c = zero.at[:9].set((gc / s0 - jnp.eye(3, dtype=dtype)).ravel())
+        c_c = jnp.nan_to_num(cost_at(s0, th_c), nan=jnp.inf)
+        theta0 = jnp.where(c_c < jnp.min(costs), th_c, zero)
+    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w, *extra, config.prior, *textra)
+    solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
+    sol = optx.least_squares(gyr_residuals, solver, theta0, args=args, max_steps=config.max_steps, throw=False)
+    g = s0 * (jnp.eye(3, dtype=dtype) + sol.value[:9].reshape(3, 3))
+    gs = sol.value[9:18].reshape(3, 3) if config.g_sensitivity else jnp.zeros((3, 3), dtype)
+    gyr_cost = jnp.sum(gyr_residuals(sol.value, args[:10] + (None,) + args[11:]) ** 2)
+    return MultiposFit(acc, InverseAffine(g, bg), gs, acc_cost, gyr_cost)
+
+
+def fit_multipos(
+    t: np.ndarray,
+    acc: np.ndarray,
+    gyr: np.ndarray,
+    intervals: np.ndarray,
+    config: MultiposConfig = MultiposConfig(),
+    *,
+    gyr_limit: float | None = None,
+    block: int = 8,
+    turns: VerticalTurns | None = None,
+) -> MultiposFit:
+    """:func:`prepare` + :func:`fit_prepared` in float64 (optional vertical ``turns``, see
+    :func:`prepare_turns`); returns numpy-backed arrays."""
+    return _fit_numpy(prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block), config, turns)
+
+
+def _fit_numpy(data: MultiposData, config: MultiposConfig, turns: VerticalTurns | None) -> MultiposFit:
+    """:func:`fit_prepared` (jitted, float64) on numpy-prepared data; numpy-backed result."""
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
+        fit = jax.jit(fit_prepared, static_argnums=1)(d, config, None, None, None, None, tv)
+        return jax.tree_util.tree_map(np.asarray, fit)
+
+
+def to_affine(cal: InverseAffine) -> Affine:
+    """The forward model ``y = S x + b`` (``S = A^-1``) of an applied calibration."""
+    return Affine(S=np.linalg.inv(np.asarray(cal.A)), b=np.asarray(cal.b))

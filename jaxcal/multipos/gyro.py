@@ -1,0 +1,152 @@
+"""Multipos gyroscope: ``w = G (y - b) [- G_s f]`` integrated between poses must carry gravity.
+
+Pure residuals of the gyro fit (:func:`gyr_residuals`: carried-gravity rows, plus optional
+known-rotation and vertical-turn rows), the rotation of a transition from its block sums
+(:func:`block_rotvecs`, :func:`carry_rotation`), the label-free Ferraris start :func:`turn_init`
+and the scores :func:`gyro_angle_errors`, :func:`known_rotation_errors`, :func:`vertical_turn_errors`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jaxcal.multipos.acc import prior_rows
+from jaxcal.multipos.data import InverseAffine, KnownRotations, MultiposData, VerticalTurns
+from jaxcal.rotation import exp_so3, log_so3
+
+
+def carry_rotation(w: Float[Array, "J L 3"], dt: Float[Array, "J L"]) -> Float[Array, "J 3 3"]:
+    """``R_j = prod_l Exp(w_jl dt_jl)`` (ordered, left to right) for every transition.
+
+    Padding steps have ``dt = 0`` (identity). The product is a pairwise tree reduction
+    (``log2 L`` batched matrix products) rather than an ``L``-step scan: same result, far fewer
+    sequential steps.
+    """
+    L = w.shape[1]
+    n = 1 << max(0, int(np.ceil(np.log2(max(L, 1)))))
+    r = exp_so3(w * dt[..., None])
+    if n > L:
+        eye = jnp.broadcast_to(jnp.eye(3, dtype=r.dtype), (r.shape[0], n - L, 3, 3))
+        r = jnp.concatenate([r, eye], axis=1)
+    while r.shape[1] > 1:
+        r = r[:, 0::2] @ r[:, 1::2]
+    return r[:, 0]
+
+
+def cofactor(g: Float[Array, "3 3"]) -> Float[Array, "3 3"]:
+    """Cofactor matrix, ``(G u) x (G v) = cof(G) (u x v)`` for every ``u, v``."""
+    return jnp.stack([jnp.cross(g[:, 1], g[:, 2]), jnp.cross(g[:, 2], g[:, 0]), jnp.cross(g[:, 0], g[:, 1])], axis=1)
+
+
+def block_rotvecs(
+    g: Float[Array, "3 3"], b: Float[Array, "3"], gsens: Float[Array, "3 3"], d: MultiposData, seg_f_off: Float[Array, "J L 3"]
+) -> Float[Array, "J L 3"]:
+    """Rotation vector of every block for ``w = G (y - b) - G_s f`` (second-order Magnus; the
+    g-sensitivity term enters to first order, ``seg_f_off`` = block sums of calibrated ``f dt``)."""
+    first = (d.sy - b * d.sdt[..., None]) @ g.T
+    cross = d.c0 - jnp.cross(b, d.p1) + jnp.cross(b, d.p2)
+    return first + 0.5 * cross @ cofactor(g).T - seg_f_off @ gsens.T
+
+
+def _calibrated_acc_sums(acc: InverseAffine, d: MultiposData) -> Float[Array, "J L 3"]:
+    return (d.sacc - acc.b * d.sdt[..., None]) @ acc.A.T
+
+
+def known_rotation_residuals(
+    g: Float[Array, "3 3"], b: Float[Array, "3"], gsens: Float[Array, "3 3"], known: KnownRotations, fsum: Float[Array, "K L 3"]
+) -> Float[Array, "K 3"]:
+    """``log_so3(R_known^T R_int)`` per known-rotation section (rad, 3 components; physical
+    convention, ``R_int = prod Exp(w dt)`` of ``w = G (y - b) - G_s f``). Pure and vmappable."""
+    r = carry_rotation(block_rotvecs(g, b, gsens, known, fsum), jnp.ones_like(known.sdt))
+    return log_so3(jnp.swapaxes(known.R, -1, -2) @ r)
+
+
+def _turn_axes(acc: InverseAffine, turns: VerticalTurns) -> Float[Array, "K 3"]:
+    f = (turns.rest_acc - acc.b) @ acc.A.T
+    return f / jnp.linalg.norm(f, axis=-1, keepdims=True)
+
+
+def vertical_turn_residuals(
+    g: Float[Array, "3 3"], b: Float[Array, "3"], gsens: Float[Array, "3 3"], acc: InverseAffine, turns: VerticalTurns
+) -> Float[Array, "K 3"]:
+    """``I_k - angle_k s_k u_k`` per turn (rad): ``I_k = G (y_int - b dt) - G_s f dt`` the
+    integrated calibrated rate, ``u_k`` the calibrated gravity direction at the adjacent rests,
+    ``s_k = sign(I_k . u_k)`` the sense of the turn. Zero for an exact turn about the vertical."""
+    u = _turn_axes(acc, turns)
+    i = (turns.y_int - b * turns.dt_sum[:, None]) @ g.T - (u * turns.dt_sum[:, None]) @ gsens.T
+    s = jnp.sign(jnp.sum(i * u, -1))
+    return i - (turns.angle * s)[:, None] * u
+
+
+def vertical_turn_errors(
+    gyr: InverseAffine, gsens: Float[Array, "3 3"], acc: InverseAffine, turns: VerticalTurns
+) -> Float[Array, "K"]:
+    """Norm of :func:`vertical_turn_residuals` per turn (rad): the angle by which the integrated
+    turn misses a whole turn about the measured vertical."""
+    return jnp.linalg.norm(vertical_turn_residuals(gyr.A, gyr.b, gsens, acc, turns), axis=-1)
+
+
+def turn_init(b: Float[Array, "3"], acc: InverseAffine, turns: VerticalTurns, w: Float[Array, "K"], sign: Any = 1.0) -> Float[Array, "3 3"]:
+    """Closed-form gyro matrix from vertical turns (weights ``w``; at least three about independent
+    axes): least squares ``G Y = U`` with ``Y_k = y_int_k - b dt_k`` and ``U_k = angle_k s_k u_k``,
+    where the sense ``s_k = sign(sign * Y_k . u_k)`` follows a guess of ``sign(G)`` (``sign``). This
+    is the Ferraris gyro calibration with the axes measured by the accelerometer instead of labelled."""
+    u = _turn_axes(acc, turns)
+    y = turns.y_int - b * turns.dt_sum[:, None]
+    s = jnp.sign(sign * jnp.sum(y * u, -1))
+    target = (turns.angle * s)[:, None] * u
+    yw = y * w[:, None]
+    # weighted normal equations of min sum_k w_k |G y_k - target_k|^2: (Y^T W Y) G^T = Y^T W T
+    return jnp.linalg.lstsq(yw.T @ y, yw.T @ target, rcond=1e-10)[0].T
+
+
+def gyr_residuals(theta: Float[Array, "Q"], args: tuple) -> Float[Array, "R"]:
+    """``sqrt(w_j) (R_j^T u_j - u_{j+1})`` for every transition ``j`` (physical convention).
+
+    Optional ``args[7:]``: ``(known, known_w, known_fsum, prior, turns, turns_w, acc)``:
+    known-rotation rows ``sqrt(w_k) log_so3(R_known^T R_int)`` (:func:`known_rotation_residuals`),
+    vertical-turn rows ``sqrt(w_k) (I_k - angle_k s_k u_k)`` (:func:`vertical_turn_residuals`, axes
+    from the accelerometer calibration ``acc``) and, with a :class:`DatasheetPrior`, all data rows
+    divided by its ``gyr_sigma`` plus its 9 prior rows on ``G``."""
+    d, bg, s0, gs, fsum, u, wj = args[:7]
+    known, known_w, kfsum, prior = args[7:11] if len(args) > 7 else (None, None, None, None)
+    turns, turns_w, acc = args[11:14] if len(args) > 11 else (None, None, None)
+    g = s0 * (jnp.eye(3, dtype=theta.dtype) + theta[:9].reshape(3, 3))
+    gsm = theta[9:18].reshape(3, 3) if gs else jnp.zeros((3, 3), theta.dtype)
+    r = carry_rotation(block_rotvecs(g, bg, gsm, d, fsum), jnp.ones_like(d.sdt))
+    pred = jnp.einsum("jba,jb->ja", r, u[:-1])  # R^T u_j
+    rows = [(jnp.sqrt(wj)[:, None] * (pred - u[1:])).ravel()]
+    if known is not None:
+        kr = known_rotation_residuals(g, bg, gsm, known, kfsum)
+        rows.append((jnp.sqrt(known_w * known.seg_ok.astype(kr.dtype))[:, None] * kr).ravel())
+    if turns is not None:
+        tr = vertical_turn_residuals(g, bg, gsm, acc, turns)
+        rows.append((jnp.sqrt(turns_w * turns.seg_ok.astype(tr.dtype))[:, None] * tr).ravel())
+    if prior is not None and prior.gyr_unit_per_lsb is not None:
+        rows = [x / prior.gyr_sigma for x in rows] + [prior_rows(g, prior.gyr_unit_per_lsb, prior)]
+    return jnp.concatenate(rows)
+
+
+def gyro_angle_errors(
+    gyr: InverseAffine, gsens: Float[Array, "3 3"], acc: InverseAffine, data: MultiposData
+) -> Float[Array, "J"]:
+    """Angle (rad) between the gyro-carried gravity direction of pose ``j`` and pose ``j + 1``'s."""
+    f = (data.pose_acc - acc.b) @ acc.A.T
+    u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
+    rv = block_rotvecs(gyr.A, gyr.b, gsens, data, _calibrated_acc_sums(acc, data))
+    r = carry_rotation(rv, jnp.ones_like(data.sdt))
+    pred = jnp.einsum("jba,jb->ja", r, u[:-1])
+    c = jnp.sum(pred * u[1:], -1) / jnp.linalg.norm(pred, axis=-1)
+    return jnp.arccos(jnp.clip(c, -1.0, 1.0))
+
+
+def known_rotation_errors(
+    gyr: InverseAffine, gsens: Float[Array, "3 3"], acc: InverseAffine, known: KnownRotations
+) -> Float[Array, "K"]:
+    """Angle (rad) of ``R_known^T R_int`` per known-rotation section: the rotation error."""
+    kr = known_rotation_residuals(gyr.A, gyr.b, gsens, known, _calibrated_acc_sums(acc, known))
+    return jnp.linalg.norm(kr, axis=-1)
