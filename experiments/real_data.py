@@ -154,89 +154,20 @@ def online_heldout(rec: dict, iv: np.ndarray, data: mp.MultiposData, aspec: Diag
 
 # ----------------------------------------------------------------------------- imucal session: fair time split
 
-FACES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
-TURNS = ("x_rot", "y_rot", "z_rot")
+FACES, TURNS = mp.FERRARIS_FACES, mp.FERRARIS_TURNS
 
 
-REST_N, REST_GAP = 200, 10  # rest read next to each turn: 200 samples (~2 s), starting 10 samples from it
-
-
-def fair_split_plan(bounds: dict, fold: int) -> dict:
-    """Time split of a Ferraris session's labelled sections (``bounds[name] = (start, end)``, end
-    exclusive). The static sections are the six faces and, unlabelled, the rests just before and
-    after each turn (``REST_N`` samples, ``REST_GAP`` from the turn; their mean gravity is the
-    turning axis of a turn about the vertical). ``fold`` 0 calibrates on the first half of every
-    static section and scores the second half; fold 1 the reverse. imucal gets the faces'
-    calibration halves and the three turns; jaxcal also gets the unlabelled motions between
-    consecutive static sections (``spans[j] = [end_j, start_{j+1} - 1]``) and the rests'
-    calibration halves. A span with a turn inside (``across_turn``) is the turn, not a motion
-    between poses: it is neither fitted nor scored as one."""
-    turns = [(bounds[n][0], bounds[n][1] - 1) for n in TURNS]
-    rest_win = mp.rests_around(turns, REST_N, REST_GAP)
-    statics = [(n, *bounds[n]) for n in FACES]
-    statics += [(f"{n}_{w}", a, b) for n, win in zip(TURNS, rest_win) for w, (a, b) in zip(("before", "after"), win)]
-    statics.sort(key=lambda x: x[1])
-    fit_iv, score_iv = [], []
-    for _, a, b in statics:
-        m = (a + b) // 2
-        halves = [(a, m), (m, b)]
-        fit_iv.append(halves[fold])
-        score_iv.append(halves[1 - fold])
-    spans = [(statics[j][2], statics[j + 1][1] - 1) for j in range(len(statics) - 1)]
-    across = [any(a <= ta and tb <= b for ta, tb in turns) for a, b in spans]
-    names = [x[0] for x in statics]
-    turn_rests = [[fit_iv[names.index(f"{n}_{w}")] for w in ("before", "after")] for n in TURNS]
-    return {"faces": [n for n in names if n in FACES], "statics": names, "is_face": np.array([n in FACES for n in names]),
-            "fit_iv": np.array(fit_iv), "score_iv": np.array(score_iv), "spans": np.array(spans),
-            "across_turn": np.array(across), "turns": np.array(turns), "turn_rests": turn_rests}
-
-
-def imucal_sections(plan: dict, bounds: dict) -> dict:
-    """The sections imucal is given on a fold: the calibration halves of the faces, the whole turns."""
-    return {n: tuple(int(x) for x in plan["fit_iv"][plan["statics"].index(n)]) for n in FACES} | {n: tuple(bounds[n]) for n in TURNS}
-
-
-def fair_split_weights(across_turn: np.ndarray, n_turns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gyro folds: one row per motion between poses (spans not ``across_turn``) leaving that motion
-    out (every turn used), then one row per turn leaving it out (every motion used); spans across a
-    turn have weight 0 everywhere. Returns ``(gyr_w, turn_w, scored)``: ``scored[i]`` is the span
-    row ``i`` leaves out (-1 for the turn rows)."""
-    motions = np.flatnonzero(~np.asarray(across_turn))
-    M = len(motions)
-    gw = np.tile((~np.asarray(across_turn)).astype(float), (M + n_turns, 1))
-    kw = np.ones((M + n_turns, n_turns))
-    gw[np.arange(M), motions] = 0.0
-    kw[M + np.arange(n_turns), np.arange(n_turns)] = 0.0
-    return gw, kw, np.concatenate([motions, -np.ones(n_turns, int)])
-
-
-def fair_split_samples(plan: dict, gw_row: np.ndarray, kw_row: np.ndarray, use_known: bool = True) -> tuple[set, set, set]:
-    """Sample indices a jaxcal fold fits on (acc and gyro), and those it is scored on: ``(fitted,
-    acc_scored, gyr_scored)``. A span ``[a, b]`` uses samples ``a .. b`` (midpoint rates); the
-    rests next to a turn give its axis (their calibration halves, in ``fit_iv``)."""
-    rng = lambda a, b: set(range(int(a), int(b)))  # noqa: E731
-    fitted = set().union(*(rng(a, b) for a, b in plan["fit_iv"]))
-    fitted |= set().union(set(), *(rng(a, b + 1) for (a, b), w in zip(plan["spans"], gw_row) if w > 0))
-    if use_known:
-        fitted |= set().union(*(rng(a, b + 1) for (a, b), w in zip(plan["turns"], kw_row) if w > 0))
-    acc_scored = set().union(*(rng(a, b) for (a, b), face in zip(plan["score_iv"], plan["is_face"]) if face))
-    gyr_scored = set().union(set(), *(rng(a, b + 1) for (a, b), w, x in zip(plan["spans"], gw_row, plan["across_turn"])
-                                      if w == 0 and not x))
-    gyr_scored |= set().union(set(), *(rng(a, b + 1) for (a, b), w in zip(plan["turns"], kw_row) if w == 0))
-    return fitted, acc_scored, gyr_scored
-
-
-def _fair_data(rec: dict, plan: dict) -> tuple:
+def _fair_data(rec: dict, plan: mp.TimeSplit) -> tuple:
     """Fitted and scored static sections (with every span), the turns as closed rotations, and the
     turns about the vertical with their axis rests (the calibration halves)."""
-    fit_d = mp.prepare(rec["t"], rec["acc"], rec["gyr"], plan["fit_iv"], spans=plan["spans"])
-    score_d = mp.prepare(rec["t"], rec["acc"], rec["gyr"], plan["score_iv"], spans=plan["spans"])
-    known = mp.prepare_known(rec["t"], rec["acc"], rec["gyr"], plan["turns"], np.zeros((len(plan["turns"]), 3)))
-    turns = mp.prepare_turns(rec["t"], rec["acc"], rec["gyr"], plan["turns"], plan["turn_rests"])
+    fit_d = mp.prepare(rec["t"], rec["acc"], rec["gyr"], plan.fit_iv, spans=plan.spans)
+    score_d = mp.prepare(rec["t"], rec["acc"], rec["gyr"], plan.score_iv, spans=plan.spans)
+    known = mp.prepare_known(rec["t"], rec["acc"], rec["gyr"], plan.turns, np.zeros((len(plan.turns), 3)))
+    turns = mp.prepare_turns(rec["t"], rec["acc"], rec["gyr"], plan.turns, plan.turn_rests)
     return fit_d, score_d, known, turns
 
 
-def _fair_jaxcal(fit_d, score_d, known, turns, plan: dict, config: mp.MultiposConfig, mode: str,
+def _fair_jaxcal(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.MultiposConfig, mode: str,
                  motions: bool = True) -> tuple:
     """Held-out errors of jaxcal multipos on one time fold: acc on the faces' scored halves, the
     carried-gravity angle of each left-out motion (NaN for spans across a turn), the closure error
@@ -246,11 +177,11 @@ def _fair_jaxcal(fit_d, score_d, known, turns, plan: dict, config: mp.MultiposCo
     ``motions=False``: the gyro is fitted on the turns alone (imucal's information, no labels);
     every motion is then held out, and the turns' closure is in-sample (two turns cannot
     determine the 9 gyro parameters, so none is left out)."""
-    gw, kw, scored = fair_split_weights(plan["across_turn"], known.R.shape[0])
+    gw, kw, scored = mp.gyro_folds(plan.across_turn, known.R.shape[0])
     M = int((scored >= 0).sum())
     if not motions:  # one fit on every turn and no motion holds out every motion at once
         gw, kw = np.zeros((1, gw.shape[1])), np.ones((1, kw.shape[1]))
-    aw = plan["is_face"].astype(float)
+    aw = plan.is_face.astype(float)
     with jax.enable_x64(True):
         d, sd, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (fit_d, score_d, known, turns))
 
@@ -264,13 +195,13 @@ def _fair_jaxcal(fit_d, score_d, known, turns, plan: dict, config: mp.MultiposCo
             return jax.vmap(one)(gw, kw)
 
         ea, eg, ek = (np.asarray(x) for x in run(jnp.asarray(gw), jnp.asarray(kw)))
-    eg_out = np.full(len(plan["spans"]), np.nan)
+    eg_out = np.full(len(plan.spans), np.nan)
     if not motions:
         eg_out[scored[:M]] = eg[0, scored[:M]]
-        return ea[0][plan["is_face"]], eg_out, ek[0]
+        return ea[0][plan.is_face], eg_out, ek[0]
     eg_out[scored[:M]] = eg[np.arange(M), scored[:M]]
     K = known.R.shape[0]
-    return ea[0][plan["is_face"]], eg_out, ek[M + np.arange(K), np.arange(K)]
+    return ea[0][plan.is_face], eg_out, ek[M + np.arange(K), np.arange(K)]
 
 
 def _imucal_cal(rec: dict, bounds: dict):
@@ -291,14 +222,14 @@ def _imucal_cal(rec: dict, bounds: dict):
     return a_cal, g_cal
 
 
-def _fixed_errors(a_cal, g_cal, score_d, known, plan: dict):
+def _fixed_errors(a_cal, g_cal, score_d, known, plan: mp.TimeSplit):
     """Errors of a given calibration on a fold's scored sections: faces (acc), motions between
     poses (gyro; NaN for spans across a turn) and the turns' closure."""
     ea, eg = _score_cal(a_cal, g_cal, score_d)
     with jax.enable_x64(True):
         ek = np.asarray(mp.known_rotation_errors(jax.tree_util.tree_map(jnp.asarray, g_cal), jnp.zeros((3, 3)),
                                                  jax.tree_util.tree_map(jnp.asarray, a_cal), jax.tree_util.tree_map(jnp.asarray, known)))
-    return ea[plan["is_face"]], np.where(plan["across_turn"], np.nan, eg), ek
+    return ea[plan.is_face], np.where(plan.across_turn, np.nan, eg), ek
 
 
 def _fair_row(parts: list, scored: str) -> dict:
@@ -355,7 +286,7 @@ TURNS_ONLY = "jaxcal multipos 9-param, gyro from the turns about the measured ve
 
 def imucal_fair(quick: bool) -> tuple[dict, dict]:
     """imucal's continuous session, both methods held out on the same time split (see
-    :func:`fair_split_plan`), plus clearly labelled in-sample rows."""
+    :func:`jaxcal.multipos.time_split`), plus clearly labelled in-sample rows."""
     rec = load_npz(DATA / "imucal_ferraris_example" / "session.npz")
     sec = json.loads((DATA / "imucal_ferraris_example" / "example_ferraris_session_list.json").read_text())
     bounds = {n: (v["start"], v["end"]) for n, v in sec.items()}
@@ -375,12 +306,12 @@ def imucal_fair(quick: bool) -> tuple[dict, dict]:
         info["imucal"] = f"not installed ({e}); pip install -e '.[compare]'"
     cfg = mp.MultiposConfig()
     for fold in (0, 1):
-        plan = fair_split_plan(bounds, fold)
+        plan = mp.time_split(bounds, fold)
         fit_d, score_d, known, turns = _fair_data(rec, plan)
         bg = np.asarray(fit_d.pose_gyr).mean(0)
         parts["nominal"].append(_fixed_errors(mp.InverseAffine(np.eye(3), np.zeros(3)), mp.InverseAffine(np.eye(3), bg), score_d, known, plan))
         if have_imucal:
-            ia, ig = _imucal_cal(rec, imucal_sections(plan, bounds))
+            ia, ig = _imucal_cal(rec, mp.peer_sections(plan, bounds))
             parts["imucal"].append(_fixed_errors(ia, ig, score_d, known, plan))
         parts["mp_vertical"].append(_fair_jaxcal(fit_d, score_d, known, turns, plan, cfg, "vertical"))
         parts["mp_known"].append(_fair_jaxcal(fit_d, score_d, known, turns, plan, cfg, "closed"))
@@ -388,18 +319,18 @@ def imucal_fair(quick: bool) -> tuple[dict, dict]:
         parts["mp_turns_only"].append(_fair_jaxcal(fit_d, score_d, known, turns, plan, cfg, "vertical", motions=False))
         # online: sequences = calibration half of a face + the motion to the next face (or the motion +
         # the next face's calibration half), face-to-face motions in two interleaved folds
-        F = [j for j in range(len(plan["spans"])) if plan["is_face"][j] and plan["is_face"][j + 1]]
-        eo_a, eo_g = [], np.full(len(plan["spans"]), np.nan)
+        F = [j for j in range(len(plan.spans)) if plan.is_face[j] and plan.is_face[j + 1]]
+        eo_a, eo_g = [], np.full(len(plan.spans), np.nan)
         for tf in (0, 1):
             train = [j for j in F if j % 2 != tf]
             segs = []
             for j in train:
-                a, b = plan["spans"][j]
-                segs.append((plan["fit_iv"][j][0], b + 1) if fold == 1 else (a, plan["fit_iv"][j + 1][1]))
+                a, b = plan.spans[j]
+                segs.append((plan.fit_iv[j][0], b + 1) if fold == 1 else (a, plan.fit_iv[j + 1][1]))
             ca, cg = _online_fit(rec["acc"], rec["gyr"], segs, 1 / 102.4, Diag(np.ones(3), np.zeros(3)), Diag(np.ones(3), bg), sig)
             ea, eg, ek = _fixed_errors(ca, cg, score_d, known, plan)
             eo_a.append(ea)  # faces: every half scored is outside both folds' sequences
-            out = [j for j in range(len(plan["spans"])) if ((j % 2 == tf) if j in F else tf == 0)]
+            out = [j for j in range(len(plan.spans)) if ((j % 2 == tf) if j in F else tf == 0)]
             eo_g[out] = eg[out]  # face-to-face motions from the fold that left them out, the others from the first
         parts["online"].append((eo_a[0], eo_g, ek))  # acc from the first transition fold, turns from the second
     sc = "held out: acc on the other halves of the faces, gyro on the motions between poses"
@@ -417,22 +348,18 @@ def imucal_fair(quick: bool) -> tuple[dict, dict]:
         parts["online"], sc + " (face-to-face motions in 2 interleaved folds); turns: never used")
     # in-sample rows, kept separate: fitted on the whole static sections (and turns), scored on them
     full = {n: bounds[n] for n in FACES + TURNS}
-    plan = fair_split_plan(bounds, 0)
-    whole = np.concatenate([plan["fit_iv"][:, :1], plan["score_iv"][:, 1:]], 1)
-    plan_w = plan | {"fit_iv": whole, "turn_rests": [[tuple(whole[plan["statics"].index(f"{n}_{w}")]) for w in ("before", "after")] for n in TURNS]}
-    all_d = mp.prepare(rec["t"], rec["acc"], rec["gyr"], whole, spans=plan["spans"])
-    known = mp.prepare_known(rec["t"], rec["acc"], rec["gyr"], plan["turns"], np.zeros((3, 3)))
-    turns = mp.prepare_turns(rec["t"], rec["acc"], rec["gyr"], plan["turns"], plan_w["turn_rests"])
+    plan = mp.whole_sections(mp.time_split(bounds, 0))
+    all_d, _, known, turns = _fair_data(rec, plan)
     if have_imucal:
         rows["IN-SAMPLE imucal Ferraris (all of every section)"] = _fair_row([_fixed_errors(*_imucal_cal(rec, full), all_d, known, plan)],
                                                                            "IN-SAMPLE (whole faces, motions, turns)")
     with jax.enable_x64(True):
         d, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (all_d, known, turns))
         f = jax.tree_util.tree_map(np.asarray, jax.jit(mp.fit_prepared, static_argnums=1)(
-            d, cfg, jnp.asarray(plan["is_face"].astype(float)), jnp.asarray((~plan["across_turn"]).astype(float)), None, None, tv))
+            d, cfg, jnp.asarray(plan.is_face.astype(float)), jnp.asarray((~plan.across_turn).astype(float)), None, None, tv))
     rows["IN-SAMPLE jaxcal multipos 9-param + turns about the measured vertical (all of every section)"] = _fair_row(
         [_fixed_errors(f.acc, f.gyr, all_d, known, plan)], "IN-SAMPLE (whole static sections, motions, turns)")
-    faces = plan["faces"]
+    faces = [n for n, face in zip(plan.statics, plan.is_face) if face]
     segs = [(max(bounds[faces[j]][0], bounds[faces[j]][1] - 100), min(bounds[faces[j + 1]][1], bounds[faces[j + 1]][0] + 100))
             for j in range(len(faces) - 1)]
     ca, cg = _online_fit(rec["acc"], rec["gyr"], segs, 1 / 102.4, Diag(np.ones(3), np.zeros(3)),
@@ -443,9 +370,9 @@ def imucal_fair(quick: bool) -> tuple[dict, dict]:
     if have_imucal:
         info["paired_peer"] = next(n for n in rows if n.startswith("imucal"))
         info["paired"] = paired_with_peer(rows, info["paired_peer"], lambda e: np.degrees(np.nanmean(np.reshape(e, (2, -1)), 0)))
-    motions = [j for j in range(len(plan["spans"])) if not plan["across_turn"][j]]
-    info["motions"] = [f"{plan['statics'][j]} -> {plan['statics'][j + 1]}" for j in motions]
-    info["motion_peak_rate_dps"] = [float(np.degrees(np.linalg.norm(rec["gyr"][a:b + 1], axis=1).max())) for a, b in plan["spans"][motions]]
+    motions = [j for j in range(len(plan.spans)) if not plan.across_turn[j]]
+    info["motions"] = [f"{plan.statics[j]} -> {plan.statics[j + 1]}" for j in motions]
+    info["motion_peak_rate_dps"] = [float(np.degrees(np.linalg.norm(rec["gyr"][a:b + 1], axis=1).max())) for a, b in plan.spans[motions]]
     return rows, info
 
 

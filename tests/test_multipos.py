@@ -467,40 +467,63 @@ def test_acc_ridge_holds_unseen_cross_axis_terms():
 
 
 def test_fair_split_never_scores_a_fitted_sample():
-    """imucal session, fair time split (experiments.real_data): on every time fold and every gyro
+    """imucal session, fair time split (multipos.timesplit): on every time fold and every gyro
     fold, the samples jaxcal fits on (calibration halves, motions and turns in use) and the
     sections imucal is given never meet the samples scored (other halves, the left-out motion or
     turn); every static section's samples are either fitted or scored, in two halves of equal size
     (+-1); the rests next to a turn are static (gyro quiet) and outside every labelled section."""
     import json
 
-    from experiments import real_data as rd
-
     sec = json.loads((DATA / "imucal_ferraris_example" / "example_ferraris_session_list.json").read_text())
     bounds = {n: (v["start"], v["end"]) for n, v in sec.items()}
     rec = load_npz(DATA / "imucal_ferraris_example" / "session.npz")
     for fold in (0, 1):
-        plan = rd.fair_split_plan(bounds, fold)
-        gw, kw, scored = rd.fair_split_weights(plan["across_turn"], len(plan["turns"]))
-        assert plan["across_turn"].sum() == 3 and len(plan["spans"]) == 11
+        plan = mp.time_split(bounds, fold)
+        gw, kw, scored = mp.gyro_folds(plan.across_turn, len(plan.turns))
+        assert plan.across_turn.sum() == 3 and len(plan.spans) == 11
         assert gw.shape == (11, 11) and kw.shape == (11, 3) and (scored >= 0).sum() == 8
-        assert np.all(gw[:, plan["across_turn"]] == 0) and (kw == 0).sum() == 3
-        imu = rd.imucal_sections(plan, bounds)
+        assert np.all(gw[:, plan.across_turn] == 0) and (kw == 0).sum() == 3
+        imu = mp.peer_sections(plan, bounds)
         imu_samples = set().union(*(set(range(a, b)) for a, b in imu.values()))
         for g, k in zip(gw, kw):
-            fitted, acc_scored, gyr_scored = rd.fair_split_samples(plan, g, k)
+            fitted, acc_scored, gyr_scored = mp.split_samples(plan, g, k)
             assert acc_scored and gyr_scored
             assert not fitted & acc_scored and not fitted & gyr_scored
             assert not imu_samples & acc_scored
-        for (fa, fb), (sa, sb) in zip(plan["fit_iv"], plan["score_iv"]):
+        for (fa, fb), (sa, sb) in zip(plan.fit_iv, plan.score_iv):
             assert {fa, fb} & {sa, sb} and abs((fb - fa) - (sb - sa)) <= 1
-        labelled = set().union(*(set(range(*bounds[n])) for n in rd.FACES + rd.TURNS))
-        lo_hi = np.stack([np.minimum(plan["fit_iv"][:, 0], plan["score_iv"][:, 0]), np.maximum(plan["fit_iv"][:, 1], plan["score_iv"][:, 1])], 1)
-        for n, (lo, hi) in zip(plan["statics"], lo_hi):
-            if n not in rd.FACES:
+        labelled = set().union(*(set(range(*bounds[n])) for n in mp.FERRARIS_FACES + mp.FERRARIS_TURNS))
+        lo_hi = np.stack([np.minimum(plan.fit_iv[:, 0], plan.score_iv[:, 0]), np.maximum(plan.fit_iv[:, 1], plan.score_iv[:, 1])], 1)
+        for n, (lo, hi) in zip(plan.statics, lo_hi):
+            if n not in mp.FERRARIS_FACES:
                 assert not labelled & set(range(lo, hi))
                 assert np.abs(rec["gyr"][lo:hi]).max() < 0.05  # rad/s: at rest
         # motions touch no face; turns are separate from faces and from the motions scored
-        face_samples = set().union(*(set(range(*bounds[n])) for n in rd.FACES))
-        assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan["spans"]))
-        assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan["turns"]))
+        face_samples = set().union(*(set(range(*bounds[n])) for n in mp.FERRARIS_FACES))
+        assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan.spans))
+        assert not face_samples & set().union(*(set(range(a, b + 1)) for a, b in plan.turns))
+
+
+def test_time_split_halves_and_whole_sections():
+    """Synthetic section list: the two folds swap halves, every static section is split at its
+    midpoint, the rests sit rest_gap samples from each turn, whole_sections joins the halves back,
+    and bad folds or missing sections raise."""
+    names = [*mp.FERRARIS_FACES, *mp.FERRARIS_TURNS]
+    bounds = {n: (1000 * i + 100, 1000 * i + 500) for i, n in enumerate(names)}
+    s0, s1 = mp.time_split(bounds, 0, rest_n=50, rest_gap=10), mp.time_split(bounds, 1, rest_n=50, rest_gap=10)
+    assert len(s0.statics) == 12 and s0.is_face.sum() == 6 and s0.across_turn.sum() == 3
+    np.testing.assert_array_equal(s0.fit_iv, s1.score_iv)
+    np.testing.assert_array_equal(s0.score_iv, s1.fit_iv)
+    assert np.all(s0.fit_iv[:, 1] == s0.score_iv[:, 0])  # first half, then second
+    j = s0.statics.index("x_rot_before")
+    assert s0.fit_iv[j, 0] == bounds["x_rot"][0] - 10 - 50 and s0.score_iv[j, 1] == bounds["x_rot"][0] - 10
+    w = mp.whole_sections(s1)
+    np.testing.assert_array_equal(w.fit_iv, w.score_iv)
+    np.testing.assert_array_equal(w.fit_iv, np.stack([s0.fit_iv[:, 0], s0.score_iv[:, 1]], 1))
+    assert w.turn_rests[0][0] == (bounds["x_rot"][0] - 60, bounds["x_rot"][0] - 10)
+    peer = mp.peer_sections(s0, bounds)
+    assert peer["x_p"] == (100, 300) and peer["z_rot"] == bounds["z_rot"]
+    with pytest.raises(ValueError, match="fold"):
+        mp.time_split(bounds, 2)
+    with pytest.raises(ValueError, match="y_rot"):
+        mp.time_split({k: v for k, v in bounds.items() if k != "y_rot"}, 0)

@@ -40,7 +40,9 @@ Modules, in the order data flows through them (every name is re-exported here):
 * ``detect``: :func:`fit_multipos_recording` (interval detection with imu_tk's threshold scan,
   then the fit and the check; forward-model :class:`~jaxcal.sensor.Affine` pairs for
   ``jaxcal calibrate --method multipos``);
-* ``heldout``: :func:`leave_poses_out`.
+* ``heldout``: :func:`leave_poses_out`;
+* ``timesplit``: a held-out time split of a continuous Ferraris session (:func:`time_split`), fair
+  to a labelled tool such as imucal and to multipos.
 """
 
 from __future__ import annotations
@@ -101,4 +103,14 @@ from jaxcal.multipos.heldout import (  # noqa: F401
     HeldOut,
     fold_ids,
     leave_poses_out,
+)
+from jaxcal.multipos.timesplit import (  # noqa: F401
+    FERRARIS_FACES,
+    FERRARIS_TURNS,
+    TimeSplit,
+    time_split,
+    whole_sections,
+    peer_sections,
+    gyro_folds,
+    split_samples,
 )
