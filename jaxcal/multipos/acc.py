@@ -146,8 +146,8 @@ def fit_acc_determined(
     w = jnp.sqrt(w)
 
     def res(th):
-        a = _lower(th[:3]) * th[3:6][None, :]
-        return w * (jnp.linalg.norm((pose_acc - th[6:9]) @ a.T, axis=-1) - 1.0)
+        a, b = _acc_matrix(th, "9")
+        return w * (jnp.linalg.norm((pose_acc - b) @ a.T, axis=-1) - 1.0)
 
     def step(_, carry):
         th, _ = carry
@@ -158,7 +158,7 @@ def fit_acc_determined(
 
     th0 = jnp.concatenate([jnp.zeros(3), jnp.ones(3), jnp.zeros(3)]).astype(pose_acc.dtype)
     th, n = jax.lax.fori_loop(0, steps, step, (th0, jnp.asarray(0)))
-    return InverseAffine(_lower(th[:3]) * th[3:6][None, :], th[6:9]), n
+    return InverseAffine(*_acc_matrix(th, "9")), n
 
 
 def acc_norm_errors(acc: InverseAffine, pose_acc: Float[Array, "P 3"]) -> Float[Array, "P"]:
