@@ -36,8 +36,8 @@ class TimeSplit(NamedTuple):
     the ``[start, stop)`` half fitted / scored; ``spans`` (S - 1, 2): ``[a, b]`` from the end of
     static section ``j`` to the start of ``j + 1`` (the motion between them); ``across_turn``
     (S - 1,): that span holds a turn (it is the turn, not a motion between poses); ``turns``
-    (K, 2): ``[a, b]`` of each labelled turn; ``turn_rests``: per turn, its rests' fitted halves
-    (the windows its axis is read from)."""
+    (K, 2): ``[a, b]`` of each labelled turn; ``rest_idx`` (K, 2): the static sections just before
+    and after each turn (indices into ``statics``); :attr:`turn_rests` their fitted halves."""
 
     statics: tuple
     is_face: np.ndarray
@@ -46,7 +46,13 @@ class TimeSplit(NamedTuple):
     spans: np.ndarray
     across_turn: np.ndarray
     turns: np.ndarray
-    turn_rests: list
+    rest_idx: np.ndarray
+
+    @property
+    def turn_rests(self) -> list:
+        """Per turn, the fitted halves of its rests as ``[start, stop)`` pairs: the windows its axis
+        is read from (:func:`~jaxcal.multipos.prepare_turns`)."""
+        return [[tuple(int(x) for x in self.fit_iv[i]) for i in row] for row in self.rest_idx]
 
 
 def time_split(bounds: dict, fold: int, faces: Sequence[str] = FERRARIS_FACES, turns: Sequence[str] = FERRARIS_TURNS,
@@ -74,18 +80,16 @@ def time_split(bounds: dict, fold: int, faces: Sequence[str] = FERRARIS_FACES, t
     spans = [(statics[j][2], statics[j + 1][1] - 1) for j in range(len(statics) - 1)]
     across = [any(a <= ta and tb <= b for ta, tb in tspans) for a, b in spans]
     names = tuple(x[0] for x in statics)
-    turn_rests = [[fit_iv[names.index(f"{n}_{w}")] for w in ("before", "after")] for n in turns]
+    rest_idx = [[names.index(f"{n}_{w}") for w in ("before", "after")] for n in turns]
     return TimeSplit(names, np.array([n in faces for n in names]), np.array(fit_iv), np.array(score_iv),
-                     np.array(spans), np.array(across), np.array(tspans), turn_rests)
+                     np.array(spans), np.array(across), np.array(tspans), np.array(rest_idx))
 
 
 def whole_sections(split: TimeSplit) -> TimeSplit:
     """The same sections whole (fitted and scored on all of each static section): in-sample."""
     whole = np.concatenate([np.minimum(split.fit_iv[:, :1], split.score_iv[:, :1]),
                             np.maximum(split.fit_iv[:, 1:], split.score_iv[:, 1:])], 1)
-    idx = {tuple(iv): j for j, iv in enumerate(map(tuple, split.fit_iv))}
-    rests = [[tuple(whole[idx[tuple(w)]]) for w in win] for win in split.turn_rests]
-    return split._replace(fit_iv=whole, score_iv=whole, turn_rests=rests)
+    return split._replace(fit_iv=whole, score_iv=whole)
 
 
 def peer_sections(split: TimeSplit, bounds: dict, faces: Sequence[str] = FERRARIS_FACES,
