@@ -16,7 +16,12 @@ vec3 = st.tuples(finite, finite, finite).map(lambda t: np.asarray(t, dtype=np.fl
 tiny = st.floats(min_value=-1e-3, max_value=1e-3, allow_nan=False)
 small_vec3 = st.tuples(tiny, tiny, tiny).map(lambda t: np.asarray(t, dtype=np.float64))
 
+# Jitted once per module: eager jacobians and gradients re-trace op by op at every call.
 exp64 = jax.jit(rot.exp_so3)
+log_jit = jax.jit(rot.log_so3)
+exp_derivatives = jax.jit(lambda z: (jax.jacfwd(rot.exp_so3)(z), jax.jacrev(rot.exp_so3)(z),
+                                     jax.hessian(lambda v: jnp.sum(rot.exp_so3(v)))(z)))
+grad_weighted = jax.jit(jax.grad(lambda u: jnp.sum(rot.exp_so3(u) @ jnp.arange(3.0))))
 
 
 def _exp(v):
@@ -65,19 +70,17 @@ def test_exp_zero_is_identity_with_finite_exact_gradient():
         with jax.enable_x64(dtype == jnp.float64):
             z = jnp.zeros(3, dtype=dtype)
             np.testing.assert_array_equal(np.asarray(rot.exp_so3(z)), np.eye(3))
-            jac = np.asarray(jax.jacfwd(rot.exp_so3)(z))  # (3, 3, 3): d R_ij / d v_k
-            jac_rev = np.asarray(jax.jacrev(rot.exp_so3)(z))
+            jac, jac_rev, hess = map(np.asarray, exp_derivatives(z))  # jac: (3, 3, 3), d R_ij / d v_k
             assert np.all(np.isfinite(jac)) and np.all(np.isfinite(jac_rev))
             # d Exp / d v_k at 0 is the generator hat(e_k).
             for k in range(3):
                 np.testing.assert_allclose(jac[:, :, k], np.asarray(rot.hat(jnp.eye(3)[k])), atol=1e-7)
-            hess = jax.hessian(lambda v: jnp.sum(rot.exp_so3(v)))(z)
-            assert np.all(np.isfinite(np.asarray(hess)))
+            assert np.all(np.isfinite(hess))
 
 
 @given(vec3)
 def test_gradient_is_finite_everywhere(v):
-    g = jax.grad(lambda u: jnp.sum(rot.exp_so3(u) @ jnp.arange(3.0)))(jnp.asarray(v, jnp.float32))
+    g = grad_weighted(jnp.asarray(v, jnp.float32))
     assert np.all(np.isfinite(np.asarray(g)))
 
 
@@ -90,7 +93,7 @@ def test_log_inverts_exp(v):
         if t > np.pi - 1e-3:
             v = v / t * (t - 2 * np.pi)
     with jax.enable_x64(True):
-        back = np.asarray(rot.log_so3(exp64(jnp.asarray(v))))
+        back = np.asarray(log_jit(exp64(jnp.asarray(v))))
     np.testing.assert_allclose(back, v, atol=1e-9)
 
 
@@ -98,13 +101,13 @@ def test_log_inverts_exp(v):
 def test_exp_of_log_is_identity_map_on_so3(seed):
     with jax.enable_x64(True):
         r = rot.random_rotation(jax.random.PRNGKey(seed))
-        np.testing.assert_allclose(np.asarray(exp64(rot.log_so3(r))), np.asarray(r), atol=1e-10)
+        np.testing.assert_allclose(np.asarray(exp64(log_jit(r))), np.asarray(r), atol=1e-10)
 
 
 def test_log_near_pi_and_at_identity():
     with jax.enable_x64(True):
         for v in (jnp.array([np.pi, 0, 0]), jnp.array([0, 1e-9, 0]), jnp.zeros(3)):
-            np.testing.assert_allclose(np.asarray(rot.log_so3(exp64(v))), np.asarray(v), atol=1e-9)
+            np.testing.assert_allclose(np.asarray(log_jit(exp64(v))), np.asarray(v), atol=1e-9)
 
 
 @given(vec3, vec3)
