@@ -3,6 +3,10 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
+# The exact versions the suite was last run with (`make lock` refreshes it; `make test-latest` tries newer).
+LOCK    := constraints.txt
+# One worker per core, one test file per worker (module fixtures are built once); `-n 0` runs serially.
+PYTEST_ARGS ?= -q -ra -n auto --dist loadfile
 # JAX persistent compilation cache: compile time dominates on CPU.
 export JAX_COMPILATION_CACHE_DIR := $(CURDIR)/.jax_cache
 export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS := 0.5
@@ -11,15 +15,24 @@ export MPLBACKEND := Agg
 # numpy's BLAS threads only contend with XLA's on 2 cores (small products slow down 1000x under load).
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: install run run-full test test-all clean
+.PHONY: install lock run run-full test test-all test-latest margins clean
 
 install: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml $(LOCK)
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -c $(LOCK) -e ".[dev]"
 	touch $(STAMP)
+
+## Refresh $(LOCK): the newest versions pyproject allows, installed in a scratch venv and frozen.
+lock:
+	rm -rf .venv-lock && $(PY) -m venv .venv-lock
+	.venv-lock/bin/python -m pip install --quiet --upgrade pip
+	.venv-lock/bin/python -m pip install --quiet ".[dev]"
+	{ echo "# Exact versions for 'make install' (pip -c): written by 'make lock' on Python $$(.venv-lock/bin/python -c 'import platform; print(platform.python_version())'), $$(date -u +%Y-%m-%d)."; \
+	  .venv-lock/bin/python -m pip freeze --exclude jaxcal; } > $(LOCK).tmp && mv $(LOCK).tmp $(LOCK)
+	rm -rf .venv-lock
 
 ## The main job on built-in defaults: thesis reproduction, quick form -> results/
 run: $(STAMP)
@@ -30,10 +43,30 @@ run-full: $(STAMP)
 	$(BIN)/python -m experiments.run_all
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -ra
+	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -ra -m ""
+	$(BIN)/python -m pytest $(PYTEST_ARGS) -m ""
+
+## The suite on the newest versions pyproject allows, in a separate venv (.venv-latest).
+test-latest:
+	test -x .venv-latest/bin/python || $(PY) -m venv .venv-latest
+	.venv-latest/bin/python -m pip install --quiet --upgrade pip
+	.venv-latest/bin/python -m pip install --quiet --upgrade --upgrade-strategy eager -e ".[dev]"
+	.venv-latest/bin/python -m pip freeze --exclude jaxcal | diff $(LOCK) - || true
+	.venv-latest/bin/python -m pytest $(PYTEST_ARGS)
+
+## Near-threshold scan: the suite five times (cold and warm compilation cache, other hash seeds,
+## two host devices, serial), every numeric assertion's margin logged -> results/margins.md
+MARGINS := .margins
+margins: $(STAMP)
+	rm -rf $(MARGINS) && mkdir -p $(MARGINS)
+	JAXCAL_MARGIN_LOG=$(MARGINS)/1_cold.jsonl JAX_COMPILATION_CACHE_DIR=$(CURDIR)/$(MARGINS)/cache $(BIN)/python -m pytest $(PYTEST_ARGS) -p no:cacheprovider
+	JAXCAL_MARGIN_LOG=$(MARGINS)/2_warm.jsonl JAX_COMPILATION_CACHE_DIR=$(CURDIR)/$(MARGINS)/cache $(BIN)/python -m pytest $(PYTEST_ARGS) -p no:cacheprovider
+	JAXCAL_MARGIN_LOG=$(MARGINS)/3_hashseed.jsonl PYTHONHASHSEED=12345 $(BIN)/python -m pytest $(PYTEST_ARGS) -p no:cacheprovider
+	JAXCAL_MARGIN_LOG=$(MARGINS)/4_devices2.jsonl XLA_FLAGS=--xla_force_host_platform_device_count=2 PYTHONHASHSEED=7 $(BIN)/python -m pytest $(PYTEST_ARGS) -p no:cacheprovider
+	JAXCAL_MARGIN_LOG=$(MARGINS)/5_serial.jsonl PYTHONHASHSEED=99 $(BIN)/python -m pytest -q -ra -n 0 -p no:cacheprovider
+	$(BIN)/python -m tests.margins $(MARGINS)/[1-5]_*.jsonl > results/margins.md
 
 clean:
-	rm -rf $(VENV) .jax_cache .pytest_cache
+	rm -rf $(VENV) .venv-latest .venv-lock $(MARGINS) .jax_cache .pytest_cache
