@@ -17,8 +17,9 @@ The margin is how many times the observed quantity could grow before the asserti
 ``a > b`` with ``0.5 <= b < 1`` (its shortfall from 1 may grow that much); a margin under 3 marks a
 near-threshold test.  Comparisons whose sides have opposite signs, or are zero, log ``inf``.
 
-Report: ``python -m tests.margins RUN1.jsonl RUN2.jsonl ...`` prints, per assertion, the smallest
-margin over the runs and the spread of the observed value between runs.
+Report: ``python -m tests.margins RUN1.jsonl RUN2.jsonl ... [--perturbed RUN6.jsonl]`` prints, per
+assertion under a 3x margin, the smallest margin over the runs and how far the observed value moved
+between runs, and against a run whose float sums were reassociated.
 """
 
 from __future__ import annotations
@@ -165,49 +166,78 @@ def install(config) -> None:
     config.pluginmanager.register(rec, "jaxcal-margins")
 
 
-def report(paths: list[str], threshold: float = 3.0) -> str:
-    """Markdown table of every assertion whose smallest margin over the runs is under ``threshold``.
-
-    Per row (one assertion line of one test): the smallest ratio margin over runs and evaluations,
-    and the stability: the observed value's distance to the threshold divided by its largest
-    change between runs for the same evaluation (``inf`` when every run gave the same value).
-    """
+def _load(paths: list[str]) -> dict[tuple, dict[int, list]]:
     rows: dict[tuple, dict] = {}
     for p in paths:
         for line in Path(p).read_text().splitlines():
             r = json.loads(line)
             rows.setdefault((r["test"], r["line"], r["expr"]), {}).setdefault(r.get("k", 0), []).append(r)
+    return rows
+
+
+def _stability(values: list[float], threshold: float) -> tuple[float, float]:
+    """(largest relative change between the values, distance of the nearest to threshold / that change)."""
+    obs = np.array(values, np.float64)
+    d = float(np.nanmax(obs) - np.nanmin(obs)) if len(obs) > 1 else 0.0
+    if not d > 0:
+        return 0.0, math.inf
+    scale = float(np.nanmax(np.abs(obs))) or 1.0
+    return d / scale, float(np.nanmin(np.abs(obs - threshold))) / d
+
+
+def report(paths: list[str], threshold: float = 3.0, perturbed: str | None = None) -> str:
+    """Markdown table of every assertion whose smallest margin over the runs is under ``threshold``.
+
+    Per row (one assertion line of one test): the smallest ratio margin over runs and evaluations;
+    the stability, the observed value's distance to the threshold divided by its largest change
+    between runs for the same evaluation (``inf`` when every run gave the same value); with
+    ``perturbed`` (a run with reassociated float sums) the same against that run's values.
+    """
+    rows = _load(paths)
+    pert = _load([perturbed]) if perturbed else {}
     out = [f"{len(rows)} numeric assertions over {len(paths)} runs.",
            "margin: how many times the observed value may grow before the assertion fails (smallest over runs and",
-           "evaluations); change: largest difference of one evaluation's observed value between runs, relative;",
-           "stability: distance of the observed value to its threshold / that change (inf: identical in every run).", "",
-           "| test | line | assertion | observed | threshold | min margin | change | stability | runs |",
-           "|---|---|---|---|---|---|---|---|---|"]
-    low = 0
-    stats = []
-    for (test, line, expr), by_k in rows.items():
+           "evaluations); change: largest relative difference of one evaluation's observed value between runs;",
+           "stability: distance of the observed value to its threshold / that change (inf: identical in every run);",
+           "reordered: the same two figures against the run with XLA fast math (sums reassociated).", "",
+           "| test | line | assertion | observed | threshold | min margin | change | stability | reordered change | reordered stability |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    low, stats = 0, []
+    for key, by_k in rows.items():
         margin = min(r["margin"] for rs in by_k.values() for r in rs)
-        change, stability = 0.0, math.inf
-        for rs in by_k.values():
-            obs = np.array([r["observed"] for r in rs], np.float64)
-            d = float(np.nanmax(obs) - np.nanmin(obs)) if len(obs) > 1 else 0.0
-            if d > 0:
-                scale = float(np.nanmax(np.abs(obs))) or 1.0
-                change = max(change, d / scale)
-                dist = float(np.nanmin(np.abs(obs - rs[0]["threshold"])))
-                stability = min(stability, dist / d)
-        first = next(iter(by_k.values()))
-        runs = max(len(rs) for rs in by_k.values())
-        stats.append((margin, test, line, expr, first[0]["observed"], first[0]["threshold"], change, stability, runs))
-    for margin, test, line, expr, obs, thr, change, stability, runs in sorted(stats, key=lambda r: r[0]):
+        change, stab, pchange, pstab = 0.0, math.inf, math.nan, math.nan
+        for k, rs in by_k.items():
+            thr = rs[0]["threshold"]
+            c, st = _stability([r["observed"] for r in rs], thr)
+            change, stab = max(change, c), min(stab, st)
+            if perturbed:
+                extra = [r["observed"] for r in pert.get(key, {}).get(k, [])]
+                if extra:
+                    c, st = _stability([r["observed"] for r in rs] + extra, thr)
+                    pchange = c if math.isnan(pchange) else max(pchange, c)
+                    pstab = st if math.isnan(pstab) else min(pstab, st)
+        first = next(iter(by_k.values()))[0]
+        stats.append((margin, *key, first["observed"], first["threshold"], change, stab, pchange, pstab))
+    for margin, test, line, expr, obs, thr, change, stab, pchange, pstab in sorted(stats, key=lambda r: r[0]):
         if margin >= threshold:
             continue
         low += 1
+        ptxt = "- | -" if math.isnan(pchange) else f"{pchange:.2g} | {pstab:.3g}"
         out.append(f"| {test} | {line} | `{expr[:90]}` | {obs:.4g} | {thr:.4g} | {margin:.3g} | {change:.2g} "
-                   f"| {stability:.3g} | {runs} |")
-    out.insert(4, f"{low} with a margin under {threshold:g}x.")
+                   f"| {stab:.3g} | {ptxt} |")
+    out.insert(5, f"{low} with a margin under {threshold:g}x.")
+    if perturbed:
+        missing = sorted({t for (t, _, _) in rows} - {t for (t, _, _) in pert})
+        out += ["", f"Tests with no passing assertion logged in the reordered run (failed or skipped there): {len(missing)}", ""]
+        out += [f"- {t}" for t in missing]
     return "\n".join(out)
 
 
 if __name__ == "__main__":
-    print(report(sys.argv[1:]))
+    args = sys.argv[1:]
+    pert = None
+    if "--perturbed" in args:
+        i = args.index("--perturbed")
+        pert = args[i + 1]
+        args = args[:i] + args[i + 2:]
+    print(report(args, perturbed=pert))
