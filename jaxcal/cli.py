@@ -15,23 +15,33 @@ Subcommands live in the :data:`COMMANDS` table (name -> help, argument builder, 
 plug in with :func:`register_command`. ``import`` (:mod:`jaxcal.readers`) and ``diagnose``
 (:mod:`jaxcal.diagnose`) import their modules on use and exit 2 if this build lacks them. Exit status: 0 on
 success; 2 on bad input, with exactly one line on stderr that says what is wrong and where (no
-traceback). Progress lines of long fits go to stderr (silence them with ``--quiet``).
+traceback); 130 on Ctrl-C. Bad input is refused where it is read (the readers, recording
+validation with its plausibility checks, model loading, each method's requirements), before any
+fit where the input alone shows it. Every output (file or ``--out DIR``) is written beside its
+destination and moved into place only when complete, so a refused or interrupted run leaves
+nothing behind and never damages an earlier file; an ``--out`` that is one of the inputs is
+refused. Progress lines of long fits go to stderr (silence them with ``--quiet``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import json
+import math
+import os
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, Callable, Iterator, NamedTuple, Sequence
 
 import numpy as np
 
 from jaxcal import __version__
-from jaxcal.recording import Recording, RecordingError, load_recording, save_recording
+from jaxcal.recording import Recording, RecordingError, atomic_output, load_recording, save_recording
 
 PROG = "jaxcal"
 
@@ -70,6 +80,137 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
     return lambda msg: print(f"{PROG}: {msg}", file=sys.stderr, flush=True)
 
 
+# ----------------------------------------------------------------------------- argument types
+
+SEED_MAX = 2**32 - 1  # jax.random.PRNGKey takes 32-bit seeds; larger ones overflow or alias
+MAX_SIM_SEQUENCES = 20_000  # simulate: 101 samples each, so at most ~2 million samples per file
+
+
+def _seed(text: str) -> int:
+    """A PRNG seed: an integer in [0, 2**32 - 1]."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
+    if not 0 <= v <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"seed must lie in [0, {SEED_MAX}], got {text}")
+    return v
+
+
+def _real(low: float, high: float = math.inf, *, open_low: bool = True) -> Callable[[str], float]:
+    """An argparse type: a finite float in ``(low, high]`` (``[low, high]`` if not ``open_low``)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        inside = (v > low if open_low else v >= low) and v <= high
+        if not (math.isfinite(v) and inside):
+            rng = f"{'(' if open_low else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
+            raise argparse.ArgumentTypeError(f"expected a finite number in {rng}, got {text!r}")
+        return v
+
+    return parse
+
+
+def _count(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: an integer in ``[low, high]``."""
+
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if not low <= v <= high:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{low}, {high}], got {text}")
+        return v
+
+    return parse
+
+
+# ----------------------------------------------------------------------------- output safety
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one file (the same inode, or the same resolved path)."""
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+        return a.resolve() == b.resolve()
+    except OSError:
+        return False
+
+
+def _with_sidecars(paths: Sequence[str | Path]) -> list[Path]:
+    """Paths plus the ``.json`` sidecar of every ``.csv`` among them (written or read alongside)."""
+    out = []
+    for p in map(Path, paths):
+        out.append(p)
+        if p.suffix.lower() == ".csv":
+            out.append(p.with_suffix(".json"))
+    return out
+
+
+def _check_out_file(out: str, inputs: Sequence[str | Path]) -> None:
+    """Refuse an ``--out`` file that is a directory or would overwrite one of the command's inputs
+    (a recording, its CSV sidecar, a model)."""
+    if Path(out).is_dir():
+        raise UsageError(f"--out {out}: is a directory; name the file to write")
+    for o in _with_sidecars([out]):
+        for i in _with_sidecars(inputs):
+            if i.exists() and _same_file(o, i):
+                raise UsageError(f"--out {out}: would overwrite the input {i}; write the output elsewhere")
+
+
+def _merge_into(src: Path, dst: Path) -> None:
+    """Move every entry of ``src`` into the existing directory ``dst`` (same names replaced)."""
+    for entry in src.iterdir():
+        target = dst / entry.name
+        if entry.is_dir() and target.is_dir():
+            _merge_into(entry, target)
+        else:
+            os.replace(entry, target)
+
+
+@contextlib.contextmanager
+def _output_dir(path: str) -> Iterator[Path]:
+    """A temporary directory to write ``--out DIR`` into, published only on success.
+
+    On success its files move into ``DIR`` (created with its parents if needed; in an existing
+    ``DIR`` same-named files are replaced, others kept). On any failure, Ctrl-C included, the
+    temporary directory is removed: a refused or interrupted run leaves no folder and no partial
+    file behind, and an existing ``DIR`` is untouched.
+    """
+    d = Path(path)
+    if d.exists() and not d.is_dir():
+        raise UsageError(f"--out {path}: exists and is not a directory")
+    base = next(a for a in d.absolute().parents if a.exists())  # the nearest existing ancestor
+    if not base.is_dir():
+        raise UsageError(f"--out {path}: cannot create directory ({base} is not a directory)")
+    try:
+        tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", suffix=".partial", dir=base))
+    except OSError as e:
+        raise UsageError(f"--out {path}: cannot create directory ({e.strerror or e})") from None
+    try:
+        yield tmp
+        _publish_dir(tmp, d)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _publish_dir(tmp: Path, d: Path) -> None:
+    """Move the finished temporary directory to ``d`` (or its files into an existing ``d``)."""
+    try:
+        if d.is_dir():
+            _merge_into(tmp, d)
+        else:
+            d.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, d)
+    except OSError as e:
+        raise UsageError(f"--out {d}: cannot write ({e.strerror or e})") from None
+
+
 # ----------------------------------------------------------------------------- calibrate
 
 
@@ -105,23 +246,23 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
         "`jaxcal methods` lists what this build has",
     )
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
-    p.add_argument("--seed", type=int, default=0, help="PRNG seed (NN initial weights etc.; default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="PRNG seed in [0, 2**32 - 1] (NN initial weights etc.; default 0)")
     p.add_argument("--sensors", type=_sensors, default=None, help="calibrate only these: acc, gyr or acc,gyr")
     g = p.add_argument_group("nn options")
     g.add_argument("--widths", type=_int_tuple, default=(7500,), help="hidden widths, e.g. 7500 or 5,10,5 (default 7500)")
-    g.add_argument("--slope", type=float, default=0.1, help="leaky-ReLU slope (default 0.1)")
-    g.add_argument("--lr", type=float, default=1e-2, help="Adam learning rate (default 1e-2)")
-    g.add_argument("--patience", type=int, default=1000, help="early-stopping patience in epochs (default 1000)")
-    g.add_argument("--max-epochs", type=int, default=10000, help="maximum full-batch epochs (default 10000)")
+    g.add_argument("--slope", type=_real(0.0, 1.0, open_low=False), default=0.1, help="leaky-ReLU slope in [0, 1] (default 0.1)")
+    g.add_argument("--lr", type=_real(0.0, 10.0), default=1e-2, help="Adam learning rate (default 1e-2)")
+    g.add_argument("--patience", type=_count(1, 10**9), default=1000, help="early-stopping patience in epochs (default 1000)")
+    g.add_argument("--max-epochs", type=_count(1, 10**9), default=10000, help="maximum full-batch epochs (default 10000)")
     g.add_argument(
         "--val-fraction",
-        type=float,
+        type=_real(0.0, 1.0),
         default=0.15,
         help="share of labelled samples held out for early stopping, whole sequences if `seq` is given (default 0.15)",
     )
-    g.add_argument("--acc-range", type=float, default=2.0, help="accelerometer full scale in g for eq. 3.6 bounds (default 2)")
+    g.add_argument("--acc-range", type=_real(0.0, 1e6), default=2.0, help="accelerometer full scale in g for eq. 3.6 bounds (default 2)")
     g.add_argument(
-        "--gyr-range", type=float, default=250.0, help="gyroscope full scale in deg/s for eq. 3.6 bounds (default 250)"
+        "--gyr-range", type=_real(0.0, 1e6), default=250.0, help="gyroscope full scale in deg/s for eq. 3.6 bounds (default 250)"
     )
     m = p.add_argument_group("multipos options")
     m.add_argument(
@@ -142,20 +283,19 @@ def _turns(text: str) -> tuple[tuple[float, float], ...]:
         out = tuple(tuple(float(x) for x in part.split("-")) for part in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected START-END[,START-END...] in seconds, got {text!r}") from None
+    if not all(math.isfinite(v) for x in out for v in x):
+        raise argparse.ArgumentTypeError(f"turn times must be finite numbers of seconds, got {text!r}")
     if any(len(x) != 2 or x[1] <= x[0] for x in out):
         raise argparse.ArgumentTypeError(f"each turn needs START-END with START < END, got {text!r}")
     return out
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
-    import math
-
-    from jaxcal.model_io import FitOptions, fit_model, get_method, save_model
+    from jaxcal.model_io import FitOptions, ModelError, fit_model, get_method, save_model
 
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")
-    if args.max_epochs < 1 or args.patience < 1:
-        raise UsageError("--max-epochs and --patience must be at least 1")
+    _check_out_file(args.out, [args.recording])
     if not 0.0 < args.val_fraction < 1.0:
         raise UsageError(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
     if args.method != "multipos" and (args.turns is not None or args.partial):
@@ -178,7 +318,10 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         extra=({} if args.turns is None else {"turns": args.turns}) | ({"partial": True} if args.partial else {}),
     )
     t0 = time.perf_counter()
-    model = fit_model(args.method, rec, options)
+    try:
+        model = fit_model(args.method, rec, options)
+    except ModelError as e:  # the recording does not suit the method: say which file
+        raise ModelError(f"{args.recording}: {e}") from None
     save_model(model, args.out)
     if log:
         log(f"wrote {args.out} ({args.method}, sensors {','.join(model.sensors)}) in {time.perf_counter() - t0:.1f} s")
@@ -198,15 +341,19 @@ def _add_apply(p: argparse.ArgumentParser) -> None:
 
 
 def _run_apply(args: argparse.Namespace) -> int:
-    from jaxcal.model_io import load_model
+    from jaxcal.model_io import ModelError, load_model
 
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
+    _check_out_file(args.out, [args.model, args.recording])
     model = load_model(args.model)
     rec = load_recording(args.recording)
-    out = model.apply(rec)
     try:
-        with open(args.out, "wb") as fh:
+        out = model.apply(rec)
+    except ModelError as e:  # the model does not suit the recording (or is malformed): say which files
+        raise ModelError(f"{args.model} on {args.recording}: {e}") from None
+    try:
+        with atomic_output(args.out) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, t=np.asarray(rec.t), **out)
     except OSError as e:
         raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
@@ -273,7 +420,7 @@ def _dataset2_recordings(seed: int, config: Any, labels: bool) -> tuple[dict[str
         t=np.linspace(0.0, 2.0 * np.pi, n_gyr),  # eq. 4.7: w(t) = 0.35 sin(t), t in [0, 2 pi]
         gyr=raw(ds.test_gyr.raw),
         gyr_ref=np.asarray(ds.test_gyr.true, np.float64),
-        **spec,
+        **(spec | {"fs": None}),  # its t does not step at the sequences' fs
     )
     truth = {
         "dataset": "dataset2",
@@ -298,10 +445,10 @@ def _add_simulate(p: argparse.ArgumentParser) -> None:
         "(with acc_ref / gyr_ref labels) and DIR/truth.json (the hidden true sensor parameters).",
     )
     d2.add_argument("--out", required=True, metavar="DIR", help="output directory (created if needed)")
-    d2.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    d2.add_argument("--seed", type=_seed, default=0, help="PRNG seed in [0, 2**32 - 1] (default 0)")
     d2.add_argument("--labels", action="store_true", help="also store acc_ref/gyr_ref in train.npz and val.npz")
-    d2.add_argument("--n-train", type=int, default=None, help="training sequences (default 500)")
-    d2.add_argument("--n-val", type=int, default=None, help="validation sequences (default 100)")
+    d2.add_argument("--n-train", type=_count(1, MAX_SIM_SEQUENCES), default=None, help="training sequences (default 500)")
+    d2.add_argument("--n-val", type=_count(1, MAX_SIM_SEQUENCES), default=None, help="validation sequences (default 100)")
     d2.add_argument("--format", choices=("npz", "csv"), default="npz", help="recording file format (default npz)")
     d1 = sub.add_parser(
         "dataset1",
@@ -310,19 +457,8 @@ def _add_simulate(p: argparse.ArgumentParser) -> None:
         "DIR/truth.json, from jaxcal.simulate.dataset1 (if this build has it).",
     )
     d1.add_argument("--out", required=True, metavar="DIR", help="output directory (created if needed)")
-    d1.add_argument("--seed", type=int, default=0, help="PRNG seed (default 0)")
+    d1.add_argument("--seed", type=_seed, default=0, help="PRNG seed in [0, 2**32 - 1] (default 0)")
     d1.add_argument("--format", choices=("npz", "csv"), default="npz", help="recording file format (default npz)")
-
-
-def _out_dir(path: str) -> Path:
-    d = Path(path)
-    if d.exists() and not d.is_dir():
-        raise UsageError(f"--out {path}: exists and is not a directory")
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise UsageError(f"--out {path}: cannot create directory ({e.strerror or e})") from None
-    return d
 
 
 def _write_all(d: Path, recs: dict[str, Recording], truth: dict[str, Any], fmt: str) -> list[str]:
@@ -339,15 +475,10 @@ def _run_simulate(args: argparse.Namespace) -> int:
     if args.dataset == "dataset2":
         from jaxcal.simulate import Dataset2Config
 
-        kw = {}
-        for name in ("n_train", "n_val"):
-            v = getattr(args, name)
-            if v is not None:
-                if v < 1:
-                    raise UsageError(f"--{name.replace('_', '-')} must be at least 1, got {v}")
-                kw[name] = v
-        d = _out_dir(args.out)
-        recs, truth = _dataset2_recordings(args.seed, Dataset2Config(**kw), args.labels)
+        kw = {name: getattr(args, name) for name in ("n_train", "n_val") if getattr(args, name) is not None}
+        with _output_dir(args.out) as d:
+            recs, truth = _dataset2_recordings(args.seed, Dataset2Config(**kw), args.labels)
+            names = _write_all(d, recs, truth, args.format)
     else:
         try:
             mod = importlib.import_module("jaxcal.simulate.dataset1")
@@ -355,10 +486,10 @@ def _run_simulate(args: argparse.Namespace) -> int:
             raise UsageError("dataset 'dataset1' is not available in this build") from None
         if not hasattr(mod, "dataset1"):
             raise UsageError("dataset 'dataset1' is not available in this build")
-        d = _out_dir(args.out)
-        recs, truth = _dataset1_recordings(mod, args.seed)
-    names = _write_all(d, recs, truth, args.format)
-    print(f"{PROG}: wrote {', '.join(names)} and truth.json to {d}", file=sys.stderr)
+        with _output_dir(args.out) as d:
+            recs, truth = _dataset1_recordings(mod, args.seed)
+            names = _write_all(d, recs, truth, args.format)
+    print(f"{PROG}: wrote {', '.join(names)} and truth.json to {args.out}", file=sys.stderr)
     return 0
 
 
@@ -457,7 +588,7 @@ def _add_import(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format")
     p.add_argument("--out", required=True, metavar="REC.npz", help="recording to write (.npz or .csv)")
-    p.add_argument("--fs", type=float, default=None, help="sample rate in Hz (imucal, csv without a time column)")
+    p.add_argument("--fs", type=_real(0.0, 1e9), default=None, help="sample rate in Hz (imucal, csv without a time column)")
     p.add_argument("--acc-unit", default=None, help="accelerometer unit where the file does not say (imucal)")
     p.add_argument("--gyr-unit", default=None, help="gyroscope unit where the file does not say (imucal)")
     p.add_argument("--time-unit", default=None, help="time unit of the files (imu_tk; default s)")
@@ -465,7 +596,7 @@ def _add_import(p: argparse.ArgumentParser) -> None:
         "--columns", type=_mapping, default=None, help="csv: conventions name=CSV column, e.g. t=time,acc_x=ax,..."
     )
     p.add_argument("--units", type=_mapping, default=None, help="csv: quantity=unit, e.g. t=ms,acc=m/s^2,gyr=deg/s")
-    p.add_argument("--skip-rows", type=int, default=None, help="csv: lines to skip before the header")
+    p.add_argument("--skip-rows", type=_count(0, 10**9), default=None, help="csv: lines to skip before the header")
 
 
 def _run_import(args: argparse.Namespace) -> int:
@@ -477,6 +608,7 @@ def _run_import(args: argparse.Namespace) -> int:
         raise UsageError("command 'import' is not available in this build")
     if not args.out.lower().endswith((".npz", ".csv")):
         raise UsageError(f"--out {args.out}: recordings are written as .npz or .csv")
+    _check_out_file(args.out, args.files)
     names = {"fs": "fs", "acc_unit": "acc_unit", "gyr_unit": "gyr_unit", "time_unit": "time_unit",
              "columns": "columns", "units": "units", "skip_rows": "skip_rows"}
     options = {k: getattr(args, a) for a, k in names.items() if getattr(args, a) is not None}
@@ -507,16 +639,18 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     if not hasattr(diag, "diagnose_recording"):
         raise UsageError("command 'diagnose' is not available in this build")
     rec = load_recording(args.recording)
-    d = _out_dir(args.out)
     t0 = time.perf_counter()
-    print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-    try:
-        rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d)
-    except ValueError as e:  # documented: bad input
-        raise UsageError(f"{args.recording}: {e}") from None
+    with _output_dir(args.out) as d:
+        try:
+            diag.prepare(rec)  # refuse bad input (no reference motion, too short) before any progress line
+            print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
+            rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d)
+        except ValueError as e:  # documented: bad input
+            raise UsageError(f"{args.recording}: {e}") from None
     names = [e.get("name", "?") + "(" + e.get("sensor", "?") + ")" for e in rep.get("effects", [])]
     print(
-        f"{PROG}: wrote {d / 'report.json'} in {time.perf_counter() - t0:.1f} s; effects: {', '.join(names) or 'none'}",
+        f"{PROG}: wrote {Path(args.out) / 'report.json'} in {time.perf_counter() - t0:.1f} s; "
+        f"effects: {', '.join(names) or 'none'}",
         file=sys.stderr,
     )
     return 0
@@ -565,10 +699,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI; returns the exit status (0 ok, 2 bad input)."""
+def _bad_input_errors() -> tuple[type[BaseException], ...]:
+    """The exceptions that mean bad input (exit status 2, one line): usage, recording, model and
+    (when this build has readers) reader errors."""
     from jaxcal.model_io import ModelError
 
+    errors: tuple[type[BaseException], ...] = (UsageError, RecordingError, ModelError)
+    try:
+        errors += (importlib.import_module("jaxcal.readers").ReaderError,)
+    except (ImportError, AttributeError):
+        pass
+    return errors
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted).
+
+    Every command writes its output whole or not at all, so a refused or interrupted run leaves
+    nothing behind (and an earlier file at ``--out`` intact).
+    """
     try:
         parser = build_parser()
         try:
@@ -576,11 +725,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         except SystemExit as e:  # --help / --version
             return int(e.code or 0)
         return COMMANDS[args.command].run(args)
-    except (UsageError, RecordingError, ModelError) as e:
+    except _bad_input_errors() as e:
         msg = " ".join(str(e).split())
         prefix = "" if msg.startswith(PROG) else f"{PROG}: error: "
         print(f"{prefix}{msg}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted (no partial output left behind)", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":  # pragma: no cover

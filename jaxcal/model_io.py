@@ -10,6 +10,9 @@ A *method* is a pair of functions registered under a name with :func:`register_m
   calibrate the sensors of a recording. ``state`` comes back as nested dicts of numpy arrays
   (the ``flax.serialization.to_state_dict`` form of the fitted pytree), so ``apply_fn`` rebuilds
   NamedTuples with e.g. ``Affine(**state["acc"])``. Only the sensors present are returned.
+* optional ``check(state, meta, sensors)``: raise :class:`ModelError` when a loaded state cannot be
+  this method's (wrong shapes, a singular matrix); :func:`load_model` runs it after checking the
+  file's own fields, so a corrupt model is refused on loading, not half-way through ``apply``.
 
 Built in: ``linear`` (thesis eq. 3.1-3.5, :func:`jaxcal.linear.fit_affine`, applied with
 :func:`jaxcal.sensor.affine_inverse`) and ``nn`` (thesis section 3.3, :func:`jaxcal.nn.fit_nn`,
@@ -31,7 +34,6 @@ import json
 import math
 import os
 import time
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, NamedTuple
@@ -40,10 +42,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import serialization, traverse_util
+from flax.errors import FlaxError
 
 from jaxcal import __version__
 from jaxcal.normalise import Bounds, bounds_from_spec
-from jaxcal.recording import Recording, sequence_slices
+from jaxcal.recording import (
+    NPZ_READ_ERRORS,
+    Recording,
+    atomic_output,
+    read_npz_arrays,
+    sequence_bounds,
+    sequence_slices,
+)
 from jaxcal.sensor import Affine, Diag, affine_inverse, diag_inverse, spec_diag
 
 __all__ = [
@@ -128,14 +138,20 @@ FitFn = Callable[[Recording, FitOptions], Fitted]
 ApplyFn = Callable[[Mapping[str, Any], Mapping[str, Any], Recording], dict[str, np.ndarray]]
 
 
+CheckFn = Callable[[Mapping[str, Any], Mapping[str, Any], tuple[str, ...]], None]
+
+
 class MethodSpec(NamedTuple):
-    """A registered calibration method."""
+    """A registered calibration method. ``check(state, meta, sensors)``, optional, raises
+    :class:`ModelError` when a loaded model's state cannot be this method's (wrong shapes, a
+    singular matrix); :func:`load_model` runs it."""
 
     name: str
     fit: FitFn
     apply: ApplyFn
     needs_labels: bool
     description: str
+    check: CheckFn | None = None
 
 
 _REGISTRY: dict[str, MethodSpec] = {}
@@ -144,10 +160,11 @@ _LAZY: dict[str, Callable[[], MethodSpec | None]] = {}
 
 
 def register_method(
-    name: str, fit_fn: FitFn, apply_fn: ApplyFn, *, needs_labels: bool = False, description: str = ""
+    name: str, fit_fn: FitFn, apply_fn: ApplyFn, *, needs_labels: bool = False, description: str = "",
+    check: CheckFn | None = None,
 ) -> None:
     """Register (or replace) a calibration method under ``name`` (see the module docstring)."""
-    _REGISTRY[name] = MethodSpec(name, fit_fn, apply_fn, needs_labels, description)
+    _REGISTRY[name] = MethodSpec(name, fit_fn, apply_fn, needs_labels, description, check)
 
 
 def method_names() -> tuple[str, ...]:
@@ -220,7 +237,34 @@ def _labelled_sensors(rec: Recording, options: FitOptions, method: str) -> tuple
     if not have:
         need = " or ".join(f"'{s}' with '{REF_KEY[s]}'" for s in wanted)
         raise ModelError(f"method '{method}' needs reference labels: recording has no {need}")
+    for s in have:
+        _require_label_span(rec, s, method)
     return have
+
+
+LABEL_SPAN_MIN = 0.01  # least label spread along any direction, relative to the labels' RMS size
+_EXCITE = {"acc": "static orientations: at least 4, better 6 or more, facing different ways",
+           "gyr": "rotations about all three axes"}
+
+
+def _require_label_span(rec: Recording, sensor: str, method: str) -> None:
+    """Refuse labels that cannot determine a 3-axis calibration: fewer than 4 samples, or labels
+    that vary along fewer than 3 directions (e.g. every sample in one pose). An affine model has
+    12 unknowns per sensor; labels in one pose, on a line or in a plane leave some of them free,
+    and a fit would return an arbitrary (yet finite) model."""
+    x = np.asarray(getattr(rec, REF_KEY[sensor]), np.float64)
+    key = REF_KEY[sensor]
+    if x.shape[0] < 4:
+        n = x.shape[0]
+        raise ModelError(f"method '{method}': '{key}' has {n} labelled sample{'' if n == 1 else 's'}; a 3-axis "
+                         f"calibration needs at least 4; record {_EXCITE[sensor]}")
+    size = float(np.sqrt(np.mean(np.sum(x**2, axis=1))))
+    sv = np.linalg.svd((x - x.mean(0)) / np.sqrt(x.shape[0]), compute_uv=False)
+    spanned = int(np.sum(sv > LABEL_SPAN_MIN * size)) if size > 0 else 0
+    if spanned < 3:
+        raise ModelError(f"method '{method}': '{key}' varies along {spanned} of 3 directions (all {x.shape[0]} "
+                         f"labels {'in one pose' if spanned == 0 else 'on a line' if spanned == 1 else 'in a plane'}), "
+                         f"so the 12 parameters of '{sensor}' are undetermined; record {_EXCITE[sensor]}")
 
 
 def _units(rec: Recording, sensors: tuple[str, ...]) -> dict[str, str]:
@@ -254,6 +298,34 @@ def holdout_mask(rec: Recording, fraction: float) -> np.ndarray:
     if mask.all():
         mask[-1] = False
     return mask
+
+
+# ----------------------------------------------------------------------------- state checks
+
+MAX_CONDITION = 1e10  # a calibration matrix worse conditioned than this is singular for our purposes
+
+
+def _check_affine_state(state: Mapping[str, Any], sensors: tuple[str, ...]) -> None:
+    """Each sensor's state is an affine ``S`` (3, 3) + ``b`` (3,) or a diagonal ``s`` (3,) + ``b``,
+    finite, with an invertible, reasonably conditioned scale (the model is applied by inverting it)."""
+    for s in sensors:
+        p = state.get(s)
+        if not isinstance(p, Mapping) or "b" not in p or ("S" not in p and "s" not in p):
+            raise ModelError(f"state of '{s}' is neither affine (S, b) nor diagonal (s, b)")
+        name, want = ("S", (3, 3)) if "S" in p else ("s", (3,))
+        for key, shape in ((name, want), ("b", (3,))):
+            if np.shape(p[key]) != shape:
+                raise ModelError(f"state/{s}/{key} has shape {np.shape(p[key])}, expected {shape}")
+        m = np.asarray(p[name], np.float64)
+        cond = np.linalg.cond(m if name == "S" else np.diag(m))
+        if not np.isfinite(cond) or cond > MAX_CONDITION:
+            raise ModelError(f"state/{s}/{name} is singular (condition number {cond:.3g}); the model cannot be "
+                             "inverted to calibrate")
+
+
+def _affine_check(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str, ...]) -> None:
+    """:data:`CheckFn` of the affine-state methods (``linear``, ``online``, ``multipos``)."""
+    _check_affine_state(state, sensors)
 
 
 # ----------------------------------------------------------------------------- linear
@@ -300,6 +372,7 @@ register_method(
     _apply_linear,
     needs_labels=True,
     description="12-parameter affine model per sensor (thesis eq. 3.1-3.5); needs acc_ref/gyr_ref",
+    check=_affine_check,
 )
 
 
@@ -325,6 +398,7 @@ def _fit_nn(rec: Recording, options: FitOptions) -> Fitted:
     if not val.any():
         raise ModelError("method 'nn' needs at least 2 labelled samples (training + validation)")
     widths = tuple(int(w) for w in options.widths)
+    _check_nn_size(widths, rec.n)
     mlp = MLP(widths=widths, out_dim=3, slope=float(options.slope))
     config = TrainConfig(learning_rate=options.learning_rate, patience=options.patience, min_delta=0.0)
     max_epochs = int(options.max_epochs)
@@ -386,6 +460,22 @@ def _fit_nn(rec: Recording, options: FitOptions) -> Fitted:
             f"validation rms {meta['val_rms'][s]:.3g} {PHYS_UNIT[s]}"
         )
     return Fitted(sensors, state, meta)
+
+
+NN_MEMORY_LIMIT = 16 * 2**30  # bytes: a full-batch fit that needs more is refused before it starts
+
+
+def _check_nn_size(widths: tuple[int, ...], n: int) -> None:
+    """Refuse network sizes whose full-batch fit could not fit in memory (float32 activations and
+    their gradients for ``n`` samples, weights with Adam's two moments), before any allocation."""
+    if not widths or min(widths) < 1:
+        raise ModelError(f"method 'nn': hidden widths must be positive integers, got {list(widths)}")
+    sizes = (3, *widths, 3)
+    params = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:]))
+    need = 4 * (3 * n * sum(widths) + 4 * params)
+    if need > NN_MEMORY_LIMIT:
+        raise ModelError(f"method 'nn': widths {list(widths)} on {n} samples need about {need / 2**30:.3g} GiB "
+                         f"(limit {NN_MEMORY_LIMIT / 2**30:.0f} GiB); use smaller --widths (the thesis uses 7500)")
 
 
 def _apply_nn(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> dict[str, np.ndarray]:
@@ -461,10 +551,45 @@ def _require_spec(rec: Recording, sensor: str, method: str) -> Diag:
     return spec
 
 
+PAD_RATIO_MAX = 4.0  # padded (sequences x longest) size allowed, relative to the samples ...
+PAD_FLOOR = 2_000_000  # ... above this many padded samples (small layouts always pass)
+
+
 def _sequences_of(rec: Recording, method: str) -> np.ndarray:
+    """The ``seq`` ids, after :func:`_check_sequences` and :func:`_check_rotation`."""
     if rec.seq is None:
         raise ModelError(f"method '{method}' needs 'seq' ids (the recording must be split into rotation sequences)")
+    _check_sequences(rec, method)
+    _check_rotation(rec, method)
     return np.asarray(rec.seq)
+
+
+def _check_sequences(rec: Recording, method: str) -> None:
+    """Some sequence must hold a rotation (two or more samples), and padding the sequences to one
+    length (the filter's layout: number of sequences x longest) must stay within
+    :data:`PAD_RATIO_MAX` times the samples (or :data:`PAD_FLOOR`), so memory is bounded by the
+    recording's size."""
+    starts, ends = sequence_bounds(rec.seq)
+    lengths = ends - starts
+    if lengths.max() < 2:
+        raise ModelError(f"method '{method}': all {len(lengths)} sequences have one sample each; a sequence is a "
+                         "rotation: contiguous samples sharing one 'seq' id")
+    padded = len(lengths) * int(lengths.max())
+    if padded > max(PAD_RATIO_MAX * rec.n, PAD_FLOOR):
+        raise ModelError(
+            f"method '{method}': {len(lengths)} sequences of very unequal length (longest {int(lengths.max())}, "
+            f"median {int(np.median(lengths))} samples) pad to {padded} samples, {padded / rec.n:.0f}x the "
+            f"recording's {rec.n}; split the long sequences or drop the short ones")
+
+
+def _check_rotation(rec: Recording, method: str) -> None:
+    """Refuse a recording whose accelerometer or gyroscope output never changes: it holds no
+    rotation, and a self-calibration would only return its prior."""
+    for s in SENSORS:
+        y = np.asarray(getattr(rec, s), np.float64)
+        if np.ptp(y, axis=0).max() == 0:
+            raise ModelError(f"method '{method}': '{s}' never changes (all {rec.n} samples identical); "
+                             "the recording holds no rotation to calibrate from")
 
 
 def _diag_state(d: Diag) -> dict[str, np.ndarray]:
@@ -557,12 +682,14 @@ def _build_online(mod: Any) -> MethodSpec:
         "online", fit, _apply_affine_state, False,
         "jaxcal's streaming self-calibration (affine per sensor, information filter on rotation "
         "sequences); needs seq ids, no labels",
+        _affine_check,
     )
 
 
 def _build_multipos(mod: Any) -> MethodSpec:
     def fit(rec: Recording, options: FitOptions) -> Fitted:
-        options.say(f"fitting multipos on {rec.n} samples ...")
+        # No progress line before the fit: its refusals (poses that determine too little, turns the
+        # data contradict) come from the fit itself and must stay the only line on stderr.
         t0 = time.perf_counter()
         try:
             acc_model, gyr_model, q = mod.fit_multipos_recording(
@@ -573,7 +700,7 @@ def _build_multipos(mod: Any) -> MethodSpec:
         state = {s: m for s, m in (("acc", acc_model), ("gyr", gyr_model)) if m is not None}
         if not state:
             raise ModelError("multipos: no sensor could be calibrated")
-        options.say(f"fitting multipos ... done in {elapsed:.1f} s")
+        options.say(f"fitted multipos on {rec.n} samples in {elapsed:.1f} s")
         gm = "-" if q["gyr_median_deg"] is None else f"{q['gyr_median_deg']:.3f} deg"
         turns = f", worst turn {q['turn_max_deg']:.3f} deg" if "turn_max_deg" in q else ""
         options.say(f"multipos: {q['n_poses']} poses, {q['n_transitions']} usable transitions; in-sample |f| - 1 g RMS "
@@ -587,6 +714,7 @@ def _build_multipos(mod: Any) -> MethodSpec:
     return MethodSpec(
         "multipos", fit, _apply_affine_state, False,
         "static poses joined by rotations (Tedaldi et al. 2014); no labels, no datasheet values",
+        _affine_check,
     )
 
 
@@ -655,13 +783,35 @@ def apply_model(model: CalibrationModel, rec: Recording) -> dict[str, np.ndarray
     other = {k: v for k, v in model.state.items() if k not in SENSORS}
     try:
         out = spec.apply({**other, **state}, model.meta, rec)
-    except (KeyError, TypeError, IndexError) as e:  # a state/meta entry missing or of the wrong kind
-        raise ModelError(f"'{model.method}' model is malformed ({type(e).__name__}: {e})") from None
-    return {k: np.asarray(v, np.float64) for k, v in out.items() if k in ("acc_cal", "gyr_cal")}
+    except (KeyError, TypeError, IndexError, ValueError, AttributeError, FlaxError) as e:
+        # a state/meta entry missing or of the wrong kind or shape
+        msg = " ".join(str(e).split())[:200]
+        raise ModelError(f"'{model.method}' model is malformed ({type(e).__name__}: {msg})") from None
+    out = {k: np.asarray(v, np.float64) for k, v in out.items() if k in ("acc_cal", "gyr_cal")}
+    _check_output(model.method, out, rec.n)
+    return out
+
+
+def _check_output(method: str, out: Mapping[str, np.ndarray], n: int) -> None:
+    """Calibrated arrays must be (N, 3) and finite: a model that yields NaN or inf is refused
+    rather than written."""
+    if not out:
+        raise ModelError(f"the '{method}' model calibrated none of the recording's sensors")
+    for k, v in out.items():
+        if v.shape != (n, 3):
+            raise ModelError(f"'{method}' model gives {k} of shape {v.shape}, expected ({n}, 3): the model is malformed")
+        bad = np.argwhere(~np.isfinite(v))
+        if bad.size:
+            raise ModelError(f"'{method}' model gives a non-finite {k} at row {int(bad[0][0])} (a singular or "
+                             "corrupt model, or input far outside its range)")
 
 
 def save_model(model: CalibrationModel, path: str | os.PathLike) -> None:
-    """Write ``model`` as a ``.npz`` model file (see the module docstring)."""
+    """Write ``model`` as a ``.npz`` model file (see the module docstring).
+
+    The file is written beside ``path`` and renamed over it only when complete
+    (:func:`jaxcal.recording.atomic_output`): an interruption leaves an earlier model intact.
+    """
     p = Path(path)
     flat = traverse_util.flatten_dict(dict(model.state), sep="/")
     arrays = {f"state/{k}": np.asarray(v) for k, v in flat.items()}
@@ -675,49 +825,106 @@ def save_model(model: CalibrationModel, path: str | os.PathLike) -> None:
     if p.suffix.lower() != ".npz":
         raise ModelError(f"{p}: model files are .npz (got extension {p.suffix!r})")
     try:
-        with open(p, "wb") as fh:
+        with atomic_output(p) as tmp, open(tmp, "wb") as fh:  # whole or not at all: never a truncated model
             np.savez_compressed(fh, **arrays)
     except OSError as e:
         raise ModelError(f"{p}: cannot write ({e.strerror or e})") from None
 
 
 def load_model(path: str | os.PathLike) -> CalibrationModel:
-    """Read a model file written by :func:`save_model`.
+    """Read a model file written by :func:`save_model`, checking every field before use.
 
     Raises:
-        ModelError: missing/unreadable file, not a jaxcal model, or a method unknown or not
-            available in this build.
+        ModelError: missing/unreadable file, not a jaxcal model, a header field of the wrong
+            kind (format not an integer, metadata not a JSON object, ...), state arrays that are
+            not finite real numbers, a state the method cannot use (its ``check``: e.g. a 2x2 or
+            singular matrix), or a method unknown or not available in this build.
     """
     p = Path(path)
     if not p.is_file():
         raise ModelError(f"{p}: no such model file")
     try:
-        with np.load(p, allow_pickle=False) as z:
-            d = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
+        d = read_npz_arrays(p)
+    except NPZ_READ_ERRORS as e:
         raise ModelError(f"{p}: cannot read as a .npz model file ({type(e).__name__})") from None
-    if "jaxcal_model_format" not in d or "method" not in d:
-        raise ModelError(f"{p}: not a jaxcal model file (no 'jaxcal_model_format'/'method' keys)")
-    if int(d["jaxcal_model_format"]) > MODEL_FORMAT:
-        raise ModelError(f"{p}: model format {int(d['jaxcal_model_format'])} is newer than this jaxcal reads")
-    method = str(d["method"])
-    if method not in method_names():
-        raise ModelError(f"{p}: model of unknown method '{method}' (known: {', '.join(method_names())})")
     try:
-        get_method(method)
+        method = _model_method(d)
+        meta = _model_meta(d)
+        sensors = _model_sensors(d)
+        state = _model_state(d, sensors)
+        spec = get_method(method)
     except ModelError as e:
         raise ModelError(f"{p}: {e}") from None
-    try:
-        meta = json.loads(str(d.get("meta_json", "{}")))
-    except ValueError:
-        raise ModelError(f"{p}: 'meta_json' is not valid JSON") from None
-    flat = {k[len("state/"):]: v for k, v in d.items() if k.startswith("state/")}
-    state = traverse_util.unflatten_dict(flat, sep="/") if flat else {}
-    sensors = tuple(str(s) for s in np.atleast_1d(d.get("sensors", np.asarray([], dtype=str))))
-    bad = [s for s in sensors if s not in SENSORS]
-    if bad or not sensors:
-        raise ModelError(f"{p}: bad 'sensors' entry {list(sensors)} (expected a subset of acc, gyr)")
+    if spec.check is not None:
+        try:
+            spec.check(state, meta, sensors)
+        except ModelError as e:
+            raise ModelError(f"{p}: malformed '{method}' model: {e}") from None
     return CalibrationModel(method, sensors, state, meta)
+
+
+def _scalar_field(d: Mapping[str, np.ndarray], key: str, kinds: str, what: str) -> Any:
+    """A 0-d entry of the model file whose dtype kind is in ``kinds``, as a Python scalar."""
+    a = d[key]
+    if a.shape != () or a.dtype.kind not in kinds:
+        raise ModelError(f"'{key}' must be {what}, got {a.dtype} of shape {a.shape}")
+    return a.item()
+
+
+def _model_method(d: Mapping[str, np.ndarray]) -> str:
+    """Format (an integer this jaxcal reads) and method name (a known string)."""
+    if "jaxcal_model_format" not in d or "method" not in d:
+        raise ModelError("not a jaxcal model file (no 'jaxcal_model_format'/'method' keys)")
+    fmt = _scalar_field(d, "jaxcal_model_format", "iu", "an integer")
+    if not 1 <= fmt <= MODEL_FORMAT:
+        raise ModelError(f"model format {fmt} is not one this jaxcal reads (1..{MODEL_FORMAT})")
+    method = str(_scalar_field(d, "method", "U", "a string"))
+    if method not in method_names():
+        raise ModelError(f"model of unknown method '{method}' (known: {', '.join(method_names())})")
+    return method
+
+
+def _model_meta(d: Mapping[str, np.ndarray]) -> dict[str, Any]:
+    """``meta_json``: a JSON object (``{}`` if absent); its ``units``, if any, an object too."""
+    text = _scalar_field(d, "meta_json", "U", "a JSON string") if "meta_json" in d else "{}"
+    try:
+        meta = json.loads(text)
+    except ValueError:
+        raise ModelError("'meta_json' is not valid JSON") from None
+    if not isinstance(meta, dict):
+        raise ModelError(f"'meta_json' must hold a JSON object, got {type(meta).__name__}")
+    if not isinstance(meta.get("units", {}), dict):
+        raise ModelError(f"'meta_json' field 'units' must be an object, got {type(meta['units']).__name__}")
+    return meta
+
+
+def _model_sensors(d: Mapping[str, np.ndarray]) -> tuple[str, ...]:
+    """``sensors``: a non-empty set of strings from ``acc``, ``gyr``."""
+    a = d.get("sensors", np.asarray([], dtype=str))
+    if a.dtype.kind != "U" or a.ndim > 1:
+        raise ModelError(f"'sensors' must be a list of strings, got {a.dtype} of shape {a.shape}")
+    sensors = tuple(str(s) for s in np.atleast_1d(a))
+    if not sensors or any(s not in SENSORS for s in sensors) or len(set(sensors)) != len(sensors):
+        raise ModelError(f"bad 'sensors' entry {list(sensors)} (expected a subset of acc, gyr)")
+    return sensors
+
+
+def _model_state(d: Mapping[str, np.ndarray], sensors: tuple[str, ...]) -> dict[str, Any]:
+    """The ``state/...`` arrays, unflattened: finite real numbers, an entry for every sensor."""
+    flat = {k[len("state/"):]: v for k, v in d.items() if k.startswith("state/")}
+    for k, v in flat.items():
+        if v.dtype.kind not in "iuf":
+            raise ModelError(f"state/{k}: expected real numbers, got {v.dtype}")
+        if not np.all(np.isfinite(v)):
+            raise ModelError(f"state/{k}: non-finite value")
+    try:
+        state = traverse_util.unflatten_dict(flat, sep="/") if flat else {}
+    except (ValueError, TypeError, KeyError) as e:
+        raise ModelError(f"state keys do not form a tree ({type(e).__name__}: {e})") from None
+    missing = [s for s in sensors if not isinstance(state.get(s), dict)]
+    if missing:
+        raise ModelError(f"no state for '{missing[0]}', which 'sensors' lists")
+    return state
 
 
 def method_help() -> str:

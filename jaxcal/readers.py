@@ -94,10 +94,25 @@ def unit_from_header(name: str) -> str | None:
     return m.group(1)
 
 
+def _read_text(path: Path) -> str:
+    """The whole file as UTF-8 text (a byte-order mark is dropped); a binary file is refused."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise ReaderError(f"{path}: not a text file (byte {e.start} is not UTF-8); is it the right file?") from None
+    except OSError as e:
+        raise ReaderError(f"{path}: cannot read ({e.strerror or e})") from None
+    if "\x00" in text:
+        raise ReaderError(f"{path}: not a text file (it holds NUL bytes); is it the right file?")
+    return text
+
+
 def _read_table(path: Path, skip: int = 0) -> tuple[list[str], list[list[str]]]:
-    text = path.read_text()
-    lines = text.splitlines()[skip:]
-    rows = list(csv.reader(io.StringIO("\n".join(lines))))
+    lines = _read_text(path).splitlines()[skip:]
+    try:
+        rows = list(csv.reader(io.StringIO("\n".join(lines))))
+    except csv.Error as e:
+        raise ReaderError(f"{path}: not a readable CSV ({e})") from None
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
         raise ReaderError(f"{path}: no header line")
@@ -105,20 +120,45 @@ def _read_table(path: Path, skip: int = 0) -> tuple[list[str], list[list[str]]]:
     return header, rows[1:]
 
 
+def _need_rows(path: Path, rows: list[list[str]], n: int = 2) -> None:
+    """Refuse a table with fewer than ``n`` data rows (e.g. a header and nothing else)."""
+    if len(rows) < n:
+        raise ReaderError(f"{path}: {len(rows)} data rows after the header; need at least {n}")
+
+
+def _need_columns(path: Path, header: list[str], names: Sequence[str], what: str) -> None:
+    """Refuse a table lacking any of ``names`` (e.g. another format's CSV), naming the first missing."""
+    missing = [n for n in names if n not in header]
+    if missing:
+        raise ReaderError(f"{path}: column {missing[0]!r} not found; not {what}? header has {header[:12]}")
+
+
 def _column(path: Path, header: list[str], rows: list[list[str]], name: str) -> np.ndarray:
     if name not in header:
         raise ReaderError(f"{path}: column {name!r} not found; header has {header}")
     j = header.index(name)
-    try:
-        return np.array([float(r[j]) for r in rows], dtype=np.float64)
-    except (ValueError, IndexError) as e:
-        raise ReaderError(f"{path}: column {name!r}: non-numeric or missing value ({e})") from None
+    out = np.empty(len(rows), dtype=np.float64)
+    for i, r in enumerate(rows):
+        try:
+            out[i] = float(r[j])
+        except (ValueError, IndexError):
+            cell = repr(r[j]) if j < len(r) else "nothing"
+            raise ReaderError(f"{path}: column {name!r} row {i} (line {i + 2}): expected a number, "
+                              f"got {cell}") from None
+    return out
+
+
+_COUNT_LIMIT = 2**31 - 1  # counts are stored as int32
 
 
 def _as_counts(x: np.ndarray, where: str) -> np.ndarray:
-    """Raw counts as int32; they must be integer-valued."""
+    """Raw counts as int32; they must be finite, integer-valued and fit 32 bits (never wrapped)."""
     if not np.all(np.isfinite(x)) or np.any(np.abs(x - np.round(x)) > 1e-6):
         raise ReaderError(f"{where}: unit says raw counts (LSB) but the values are not integers")
+    big = np.argwhere(np.abs(x) > _COUNT_LIMIT)
+    if big.size:
+        raise ReaderError(f"{where} row {int(big[0][0])}: count {x[tuple(big[0])]:.6g} does not fit 32 bits; "
+                          "these are not raw ADC counts")
     return np.round(x).astype(np.int32)
 
 
@@ -136,27 +176,18 @@ def _check_time(t: np.ndarray, where: str) -> np.ndarray:
 def check_plausible(rec: Mapping[str, Any], where: str = "recording") -> None:
     """Reject physical units that cannot be right (a wrong unit, e.g. m/s^2 declared as g).
 
-    The median accelerometer norm of a hand-held or resting IMU lies near 1 g; a value outside
-    [0.25, 4] g means the declared unit is off by a large factor. A median gyro rate above
-    20 rad/s (1150 deg/s) likewise means deg/s were declared as rad/s.
+    The rule is :func:`jaxcal.recording.implausible` (the one every loaded recording passes too);
+    here the message names the file's own column.
     """
-    if rec.get("acc_unit") == "g" and "acc" in rec:
-        med = float(np.median(np.linalg.norm(rec["acc"], axis=-1)))
-        if not 0.25 <= med <= 4.0:
-            col = rec.get("_acc_columns", "acc")
-            hint = " (looks like m/s^2)" if 5.0 < med < 15.0 else ""
-            raise ReaderError(
-                f"{where}: column {col}: median |acc| is {med:.3g} g after unit conversion, "
-                f"not near 1 g{hint}; the declared accelerometer unit is wrong"
-            )
-    if rec.get("gyr_unit") == "rad/s" and "gyr" in rec:
-        med = float(np.median(np.linalg.norm(rec["gyr"], axis=-1)))
-        if med > 20.0:
-            col = rec.get("_gyr_columns", "gyr")
-            raise ReaderError(
-                f"{where}: column {col}: median |gyr| is {med:.3g} rad/s after unit conversion; "
-                "the declared gyroscope unit is wrong (deg/s declared as rad/s?)"
-            )
+    from jaxcal.recording import implausible
+
+    for s, unit, word in (("acc", "g", "accelerometer"), ("gyr", "rad/s", "gyroscope")):
+        if rec.get(f"{s}_unit") != unit or s not in rec:
+            continue
+        why = implausible(s, np.asarray(rec[s], np.float64), "after unit conversion")
+        if why:
+            col = rec.get(f"_{s}_columns", s)
+            raise ReaderError(f"{where}: column {col}: {why}; the declared {word} unit is wrong")
 
 
 def _finish(rec: dict[str, Any], where: str, plausible: bool = True) -> dict[str, Any]:
@@ -230,7 +261,11 @@ def read_generic_csv(
     """
     path = Path(path)
     units = dict(units or {})
-    header, rows = _read_table(path, skip_rows)
+    if fs is not None:
+        fs = _positive_rate(fs, f"{path}: fs")
+    if int(skip_rows) < 0:
+        raise ReaderError(f"{path}: skip_rows must be at least 0, got {skip_rows}")
+    header, rows = _read_table(path, int(skip_rows))
     rec: dict[str, Any] = {}
     if "t" in columns:
         tu = units.get("t") or unit_from_header(columns["t"])
@@ -267,21 +302,12 @@ def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, time_unit: str = 
     Both files must share the time column (imu_tk's test data does). Values are kept as integer
     counts (LSB); the imu_tk test recordings are unsigned 16-bit ADC counts centred near 32768.
     """
-    out = {}
-    for key, p in (("acc", acc_path), ("gyr", gyr_path)):
-        p = Path(p)
-        try:
-            a = np.loadtxt(p, ndmin=2)
-        except ValueError as e:
-            raise ReaderError(f"{p}: not a whitespace-separated numeric 't x y z' file ({e})") from None
-        if a.shape[1] != 4:
-            raise ReaderError(f"{p}: expected 4 columns 't x y z', found {a.shape[1]}")
-        out[key] = a
+    out = {key: _txyz_table(Path(p)) for key, p in (("acc", acc_path), ("gyr", gyr_path))}
     ta, tg = out["acc"][:, 0], out["gyr"][:, 0]
     if ta.shape != tg.shape or not np.allclose(ta, tg):
         raise ReaderError(f"{gyr_path}: column 't': time differs from {acc_path}; resample first")
     tf = unit_factor("t", time_unit, where=f"{acc_path}: column 't'")
-    t = ta * tf
+    t = _check_time(ta * tf, f"{acc_path}: column 't'")
     rec = {
         "t": t,
         "acc": _as_counts(out["acc"][:, 1:], f"{acc_path}: columns 'x y z'"),
@@ -291,6 +317,24 @@ def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, time_unit: str = 
         "fs": float(1.0 / np.median(np.diff(t))),
     }
     return _finish(rec, str(acc_path))
+
+
+def _txyz_table(p: Path) -> np.ndarray:
+    """An imu_tk file: whitespace-separated ``t x y z`` rows of numbers (``#`` comments skipped)."""
+    rows: list[list[float]] = []
+    for k, line in enumerate(_read_text(p).splitlines()):
+        cells = line.split()
+        if not cells or cells[0].startswith("#"):
+            continue
+        if len(cells) != 4:
+            raise ReaderError(f"{p}: line {k + 1}: expected 4 columns 't x y z', found {len(cells)}")
+        try:
+            rows.append([float(c) for c in cells])
+        except ValueError:
+            raise ReaderError(f"{p}: line {k + 1}: expected numbers 't x y z', got {line.strip()[:40]!r}") from None
+    if len(rows) < 2:
+        raise ReaderError(f"{p}: {len(rows)} data lines; need at least 2 't x y z' samples")
+    return np.asarray(rows, dtype=np.float64)
 
 
 _IMUCAL_PHYS = ("gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z")
@@ -315,10 +359,12 @@ def read_imucal(
     continuous session the same way (-1 outside every section).
     """
     path = Path(path)
+    fs = _positive_rate(fs, f"{path}: fs")
     header, rows = _read_table(path)
     idx_name = "n_samples" if "n_samples" in header else "samples" if "samples" in header else None
     if idx_name is None:
-        raise ReaderError(f"{path}: no 'n_samples' or 'samples' index column; header has {header}")
+        raise ReaderError(f"{path}: no 'n_samples' or 'samples' index column; header has {header[:12]}")
+    _need_rows(path, rows)
     n = _column(path, header, rows, idx_name)
     has_part = "part" in header
     if has_part:
@@ -337,25 +383,54 @@ def read_imucal(
         "gyr_unit": gu, "fs": float(fs), "_acc_columns": "'acc_x'", "_gyr_columns": "'gyr_x'",
     }
     if has_part:
-        parts = np.array([r[header.index("part")].strip() for r in rows])[order]
+        j = header.index("part")
+        parts = np.array([r[j].strip() if j < len(r) else "" for r in rows])[order]
         names = sorted(set(parts.tolist()))
         rec["section"] = np.array([names.index(p) for p in parts], dtype=np.int32)
         rec["section_names"] = np.array(names)
     elif sections is not None:
-        spec = json.loads(Path(sections).read_text())
-        names = list(spec)
+        spans = _sections_json(Path(sections))
         sec = np.full(len(n), -1, dtype=np.int32)
         ni = n[order]
-        for k, nm in enumerate(names):
-            sec[(ni >= spec[nm]["start"]) & (ni <= spec[nm]["end"])] = k
+        for k, (start, end) in enumerate(spans.values()):
+            sec[(ni >= start) & (ni <= end)] = k
         rec["section"] = sec
-        rec["section_names"] = np.array(names)
+        rec["section_names"] = np.array(list(spans))
     return _finish(rec, str(path))
 
 
-def _quat_columns_xyzw_to_wxyz(q_xyzw: np.ndarray) -> np.ndarray:
-    q = np.concatenate([q_xyzw[:, 3:4], q_xyzw[:, :3]], axis=1)
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+def _positive_rate(fs: Any, where: str) -> float:
+    """A sample rate in Hz: a positive finite number."""
+    try:
+        f = float(fs)
+    except (TypeError, ValueError):
+        raise ReaderError(f"{where}: sample rate must be a number, got {fs!r}") from None
+    if not (math.isfinite(f) and f > 0):
+        raise ReaderError(f"{where}: sample rate must be positive and finite, got {fs!r}")
+    return f
+
+
+def _sections_json(path: Path) -> dict[str, tuple[float, float]]:
+    """imucal's section list ``{"x_p": {"start": i, "end": j}, ...}`` as ``name -> (start, end)``."""
+    try:
+        spec = json.loads(_read_text(path))
+    except ValueError as e:
+        raise ReaderError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(spec, dict) or not spec:
+        raise ReaderError(f"{path}: expected a JSON object of sections {{\"name\": {{\"start\": i, \"end\": j}}, ...}}")
+    out = {}
+    for name, v in spec.items():
+        ends = [v.get(k) for k in ("start", "end")] if isinstance(v, dict) else [None, None]
+        if not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in ends):
+            raise ReaderError(f"{path}: section {name!r}: needs numeric 'start' and 'end' sample indices, got {v!r}"[:300])
+        if ends[1] < ends[0]:
+            raise ReaderError(f"{path}: section {name!r}: 'end' {ends[1]} comes before 'start' {ends[0]}")
+        out[str(name)] = (float(ends[0]), float(ends[1]))
+    return out
+
+
+def _quat_columns_xyzw_to_wxyz(q_xyzw: np.ndarray, where: str = "quaternion") -> np.ndarray:
+    return _unit_quaternions(np.concatenate([q_xyzw[:, 3:4], q_xyzw[:, :3]], axis=1), where)
 
 
 def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
@@ -379,13 +454,16 @@ def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.nda
 
 
 def _attach_pose(rec: dict[str, Any], t_gt: np.ndarray, pos: np.ndarray, q_wxyz: np.ndarray,
-                 max_gap: float) -> None:
+                 max_gap: float, where: str = "pose") -> None:
     """Interpolate a pose track to the IMU times (linear / slerp, held at the ends).
 
     ``ref_valid`` (N,) bool marks IMU samples inside the track and not across a gap longer than
     ``max_gap`` s; elsewhere the pose is only the nearest held value. The original track is kept
-    as ``gt_t``, ``gt_pos``, ``gt_quat``.
+    as ``gt_t``, ``gt_pos``, ``gt_quat``. The track's times must increase (``where`` names them).
     """
+    t_gt = _check_time(np.asarray(t_gt, np.float64), where)
+    if not np.all(np.isfinite(pos)):
+        raise ReaderError(f"{where}: non-finite position")
     t = rec["t"]
     rec["pos_ref"] = np.stack([np.interp(t, t_gt, pos[:, k]) for k in range(3)], -1)
     rec["quat_ref"] = _slerp_to(t_gt, q_wxyz, t)
@@ -402,6 +480,31 @@ def _exact_time(text: str) -> int | float:
         return int(text)
     except ValueError:
         return float(text)
+
+
+def _time_cells(path: Path, header: list[str], rows: list[list[str]]) -> list[int | float]:
+    """The first column as exact time stamps (:func:`_exact_time`), finite."""
+    out = []
+    for i, r in enumerate(rows):
+        try:
+            x = _exact_time(r[0])
+        except ValueError:
+            raise ReaderError(f"{path}: column {header[0]!r} row {i} (line {i + 2}): expected a time stamp, "
+                              f"got {r[0]!r}") from None
+        if not math.isfinite(x):
+            raise ReaderError(f"{path}: column {header[0]!r} row {i} (line {i + 2}): non-finite time stamp {r[0]!r}")
+        out.append(x)
+    return out
+
+
+def _unit_quaternions(q: np.ndarray, where: str) -> np.ndarray:
+    """Quaternions (K, 4), finite and of unit norm (within 1 %), renormalised exactly."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        norm = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(~np.isfinite(norm) | (np.abs(norm - 1.0) > 0.01))
+    if bad.size:
+        raise ReaderError(f"{where} row {int(bad[0])}: quaternion norm {norm[bad[0]]:.4g}, not a unit quaternion")
+    return q / norm[:, None]
 
 
 _EUROC_IMU = ("w_RS_S_x", "w_RS_S_y", "w_RS_S_z", "a_RS_S_x", "a_RS_S_y", "a_RS_S_z")
@@ -424,8 +527,10 @@ def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max
     imu_path = Path(imu_path)
     header, rows = _read_table(imu_path)
     names = _strip_units(header)
+    _need_columns(imu_path, names, _EUROC_IMU, "an EuRoC / ASL (or TUM-VI) IMU CSV")
+    _need_rows(imu_path, rows)
     tu = unit_from_header(header[0]) or "ns"
-    t_int = [_exact_time(r[0]) for r in rows]  # exact integer ns: float64 cannot hold 1.4e18 + 1
+    t_int = _time_cells(imu_path, header, rows)  # exact integer ns: float64 cannot hold 1.4e18 + 1
     t0 = t_int[0]
     tf = unit_factor("t", tu, where=f"{imu_path}: column {header[0]!r}")
     t = np.array([x - t0 for x in t_int], dtype=np.float64) * tf
@@ -440,17 +545,16 @@ def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max
         ph, prow = _read_table(pose_path)
         pn = _strip_units(ph)
         phdr = dict(zip(pn, ph))
+        _need_columns(pose_path, pn, _EUROC_POSE, "an EuRoC / ASL pose CSV")
+        _need_rows(pose_path, prow)
         ptu = unit_from_header(ph[0]) or "ns"
         ptf = unit_factor("t", ptu, where=f"{pose_path}: column {ph[0]!r}")
-        tg = np.array([(_exact_time(r[0]) - t0) * tf if ptf == tf else _exact_time(r[0]) * ptf - t0 * tf
-                       for r in prow], dtype=np.float64)
-        for n in _EUROC_POSE:
-            if n not in phdr:
-                raise ReaderError(f"{pose_path}: column {n!r} not found; header has {ph}")
+        tg = np.array([(x - t0) * tf if ptf == tf else x * ptf - t0 * tf for x in _time_cells(pose_path, ph, prow)],
+                      dtype=np.float64)
         pos = np.stack([_column(pose_path, ph, prow, phdr[n]) for n in _EUROC_POSE[:3]], -1)
         q = np.stack([_column(pose_path, ph, prow, phdr[n]) for n in _EUROC_POSE[3:]], -1)
-        q /= np.linalg.norm(q, axis=1, keepdims=True)
-        _attach_pose(rec, tg, pos, q, max_gap)
+        _attach_pose(rec, tg, pos, _unit_quaternions(q, f"{pose_path}: columns 'q_RS_*'"), max_gap,
+                     f"{pose_path}: column {ph[0]!r}")
     return _finish(rec, str(imu_path))
 
 
@@ -474,6 +578,8 @@ def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_g
     header, rows = _read_table(imu_path)
     if "angular_velocity.x" not in header:
         return read_euroc(imu_path, gt_path, max_gap=max_gap)
+    _need_columns(imu_path, header, ("Time",) + _TUMVI_IMU, "a TUM-VI IMU CSV")
+    _need_rows(imu_path, rows)
     traw = _column(imu_path, header, rows, "Time")
     t0 = traw[0]
     gyr = np.stack([_column(imu_path, header, rows, n) for n in _TUMVI_IMU[:3]], -1)
@@ -484,10 +590,13 @@ def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_g
     if gt_path is not None:
         gt_path = Path(gt_path)
         gh, grows = _read_table(gt_path)
+        _need_columns(gt_path, gh, ("Time",) + _TUMVI_GT, "a TUM-VI ground-truth CSV")
+        _need_rows(gt_path, grows)
         tg = _column(gt_path, gh, grows, "Time") - t0
         pos = np.stack([_column(gt_path, gh, grows, n) for n in _TUMVI_GT[:3]], -1)
         q_xyzw = np.stack([_column(gt_path, gh, grows, n) for n in _TUMVI_GT[3:]], -1)
-        _attach_pose(rec, tg, pos, _quat_columns_xyzw_to_wxyz(q_xyzw), max_gap)
+        _attach_pose(rec, tg, pos, _quat_columns_xyzw_to_wxyz(q_xyzw, f"{gt_path}: columns 'transform.rotation.*'"),
+                     max_gap, f"{gt_path}: column 'Time'")
     return _finish(rec, str(imu_path))
 
 
@@ -504,7 +613,7 @@ def read_mpu6050(path: str | Path) -> dict[str, Any]:
     ``gyr_lsb_per_rads``; the other metadata lines as ``meta_<name>``.
     """
     path = Path(path)
-    lines = path.read_text().splitlines()
+    lines = _read_text(path).splitlines()
     meta: dict[str, float] = {}
     k = 0
     while k < len(lines) and not lines[k].strip().lower().startswith("ax"):
@@ -523,7 +632,7 @@ def read_mpu6050(path: str | Path) -> dict[str, Any]:
     header, rows = _read_table(path, skip=k)
     acc = _as_counts(np.stack([_column(path, header, rows, n) for n in ("ax", "ay", "az")], -1), f"{path}: column 'ax'")
     gyr = _as_counts(np.stack([_column(path, header, rows, n) for n in ("gx", "gy", "gz")], -1), f"{path}: column 'gx'")
-    fs = meta["Fs"]
+    fs = _positive_rate(meta["Fs"], f"{path}: metadata 'Fs'")
     rec: dict[str, Any] = {
         "t": np.arange(len(rows)) / fs, "acc": acc, "gyr": gyr, "acc_unit": "LSB", "gyr_unit": "LSB",
         "fs": fs, "acc_lsb_per_g": MPU6050_ACC_LSB_PER_G, "gyr_lsb_per_rads": MPU6050_GYR_LSB_PER_RADS,

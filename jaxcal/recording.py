@@ -35,20 +35,26 @@ columns are kept as extra arrays (``foo_x, foo_y, foo_z`` as one ``(N, 3)`` arra
 
 This is the only I/O module of the library besides :mod:`jaxcal.model_io`; all functions take
 explicit paths. Any problem with a file raises :class:`RecordingError` whose one-line message
-names the file, the key or column, and the row.
+names the file, the key or column, and the row. Besides shapes and types, validation refuses what
+the data contradict (:func:`check_plausible`: a declared unit or datasheet scale off by a large
+factor; an ``fs`` the spacing of ``t`` does not match). Files are written whole or not at all
+(:func:`atomic_output`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
 import math
 import os
+import secrets
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
@@ -61,6 +67,9 @@ __all__ = [
     "save_recording",
     "validate_recording",
     "sequence_slices",
+    "check_plausible",
+    "atomic_output",
+    "read_npz_arrays",
 ]
 
 ACC_UNITS = ("LSB", "g")
@@ -161,7 +170,8 @@ def _as_str(v: Any) -> str:
 def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: bool = False) -> Recording:
     """Build and validate a :class:`Recording` from a ``name -> array`` mapping.
 
-    Known names go to their fields; unknown ones to ``extra``. Raises :class:`RecordingError`.
+    Known names go to their fields; unknown ones to ``extra``. Unsigned-integer arrays of known
+    keys become ``int64`` (so no later subtraction wraps around). Raises :class:`RecordingError`.
     """
     kw: dict[str, Any] = {}
     extra: dict[str, np.ndarray] = {}
@@ -172,12 +182,9 @@ def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: boo
             except TypeError:
                 raise _fail(source, f"key '{k}': expected a unit string, got shape {np.shape(v)}") from None
         elif k == "fs":
-            a = np.asarray(v)
-            if a.shape != () or not np.issubdtype(a.dtype, np.number):
-                raise _fail(source, f"key 'fs': expected a scalar sample rate in Hz, got shape {a.shape}")
-            kw[k] = float(a)
+            kw[k] = _sample_rate(source, v)
         elif k in KNOWN_KEYS:
-            kw[k] = np.asarray(v)
+            kw[k] = _signed(source, k, np.asarray(v))
         else:
             extra[k] = np.asarray(v)
     if "t" not in kw:
@@ -187,82 +194,167 @@ def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: boo
     return rec
 
 
+def _sample_rate(source: str, v: Any) -> float:
+    """``fs`` as a float; a real number is required (no string, bool or complex)."""
+    a = np.asarray(v)
+    if a.shape != () or not _is_real(a.dtype):
+        raise _fail(source, f"key 'fs': expected a scalar sample rate in Hz, got {a.dtype} of shape {a.shape}")
+    return float(a)
+
+
+def _signed(source: str, name: str, a: np.ndarray) -> np.ndarray:
+    """Unsigned integers as ``int64`` (values kept); ``uint64`` beyond ``int64`` is refused."""
+    if a.dtype.kind != "u":
+        return a
+    if a.size and a.max() > np.iinfo(np.int64).max:
+        raise _fail(source, f"key '{name}': unsigned value {a.max()} does not fit a signed 64-bit integer")
+    return a.astype(np.int64)
+
+
 # ----------------------------------------------------------------------------- validation
+
+# What a recording may hold (CONVENTIONS.md, "What is refused").
+MAX_COUNT = 2.0**32  # raw counts (LSB) beyond 32 bits are no ADC's output
+MAX_VALUE = 1e9  # any other per-sample value (g, rad/s, m, degC, ...)
+MAX_TIME = 1e12  # s (Unix seconds are 1.7e9)
+ABS_ZERO_C = -273.15
+ACC_NORM_G = (0.25, 4.0)  # median |f| of a resting or hand-held accelerometer, g
+GYR_MEDIAN_MAX = 20.0  # rad/s (1150 deg/s): a median rate above this is a unit error
+GYR_Q99_MAX = 35.0  # rad/s (2000 deg/s, the largest common full scale)
+FS_TOLERANCE = 0.25  # relative mismatch allowed between fs and the spacing of t (jittered clocks)
+QUAT_NORM_TOL = 0.01
 
 
 def _row_text(i: int, csv_rows: bool) -> str:
     return f"row {i} (line {i + 2})" if csv_rows else f"row {i}"
 
 
-def _check_numeric(source: str, name: str, a: np.ndarray) -> None:
-    if not (np.issubdtype(a.dtype, np.number) or a.dtype == np.bool_):
-        raise _fail(source, f"key '{name}': expected numbers, got dtype {a.dtype}")
+def _is_real(dtype: np.dtype) -> bool:
+    """Real numbers: integers and floats (not bool, complex, strings, objects, datetimes)."""
+    return dtype.kind in "iuf"
+
+
+def _check_numeric(source: str, name: str, a: np.ndarray, *, allow_bool: bool = False) -> None:
+    if _is_real(a.dtype) or (allow_bool and a.dtype == np.bool_):
+        return
+    kind = {"b": "booleans", "c": "complex numbers"}.get(a.dtype.kind, f"dtype {a.dtype}")
+    raise _fail(source, f"key '{name}': expected real numbers, got {kind}")
 
 
 def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = False) -> None:
     """Check a recording against CONVENTIONS.md; raise :class:`RecordingError` on the first problem.
 
     Checks: ``t`` present, 1-D, finite, strictly increasing; ``acc`` or ``gyr`` present; every
-    per-sample key has ``N`` rows and the right trailing shape and is finite; units known;
-    ``seq`` integer-valued with contiguous ids; ``static`` boolean; metadata scalar or (3,),
-    finite, scales non-zero, ``fs`` positive.
+    per-sample key has ``N`` rows and the right trailing shape, real numbers (``static`` may be
+    boolean), finite and of plausible size (raw counts within 32 bits); units known; ``seq``
+    integer-valued with contiguous ids; ``static`` boolean; ``quat_ref`` of unit norm; metadata
+    scalar or (3,), finite, scales positive, ``fs`` positive and matching the spacing of ``t``;
+    and the declared units plausible (:func:`check_plausible`).
 
     Args:
         rec: the recording.
         source: file name (or other label) put in front of the message.
         csv_rows: also give the CSV line number (header = line 1) next to each row index.
     """
-    t = rec.t
-    if t is None:
+    n = _validate_time(rec, source, csv_rows)
+    if rec.acc is None and rec.gyr is None:
+        raise _fail(source, "neither 'acc' nor 'gyr' present: a recording needs at least one sensor")
+    _validate_units(rec, source)
+    for name, comps in _VECTOR_KEYS.items():
+        _validate_per_sample(rec, name, (len(comps),), n, source, csv_rows)
+    for name in _SAMPLE_SCALAR_KEYS:
+        _validate_per_sample(rec, name, (), n, source, csv_rows)
+    _validate_seq_static(rec, source, csv_rows)
+    _validate_quaternions(rec, source, csv_rows)
+    _validate_meta(rec, source)
+    _validate_fs(rec, source)
+    check_plausible(rec, source)
+
+
+def _validate_time(rec: Recording, source: str, csv_rows: bool) -> int:
+    """``t``: 1-D real, non-empty, finite, within :data:`MAX_TIME`, strictly increasing; returns N."""
+    if rec.t is None:
         raise _fail(source, "missing required key 't' (sample times in s)")
-    t = np.asarray(t)
+    t = np.asarray(rec.t)
     _check_numeric(source, "t", t)
     if t.ndim != 1:
         raise _fail(source, f"key 't': expected shape (N,), got {t.shape}")
-    n = t.shape[0]
-    if n == 0:
+    if t.shape[0] == 0:
         raise _fail(source, "key 't': recording has no samples")
-    if rec.acc is None and rec.gyr is None:
-        raise _fail(source, "neither 'acc' nor 'gyr' present: a recording needs at least one sensor")
-    bad = np.flatnonzero(~np.isfinite(t.astype(np.float64)))
+    tf = t.astype(np.float64)  # differences of integer times must not wrap around
+    bad = np.flatnonzero(~np.isfinite(tf))
     if bad.size:
         raise _fail(source, f"key 't' {_row_text(int(bad[0]), csv_rows)}: non-finite value {t[bad[0]]}")
-    dec = np.flatnonzero(np.diff(t) <= 0)
+    big = np.flatnonzero(np.abs(tf) > MAX_TIME)
+    if big.size:
+        i = int(big[0])
+        raise _fail(source, f"key 't' {_row_text(i, csv_rows)}: time {tf[i]:.4g} s is implausibly large (t is in seconds)")
+    dec = np.flatnonzero(np.diff(tf) <= 0)
     if dec.size:
         i = int(dec[0]) + 1
         raise _fail(
             source,
             f"key 't' {_row_text(i, csv_rows)}: times not strictly increasing "
-            f"(t[{i - 1}] = {t[i - 1]!r}, t[{i}] = {t[i]!r})",
+            f"(t[{i - 1}] = {tf[i - 1]:.10g}, t[{i}] = {tf[i]:.10g})",
         )
+    return int(t.shape[0])
 
-    def per_sample(name: str, trailing: tuple[int, ...]) -> None:
-        v = getattr(rec, name)
-        if v is None:
-            return
-        a = np.asarray(v)
-        _check_numeric(source, name, a)
-        want = "(N,)" if not trailing else f"(N, {trailing[0]})"
-        if a.ndim != 1 + len(trailing) or a.shape[1:] != trailing:
-            raise _fail(source, f"key '{name}': expected shape {want}, got {a.shape}")
-        if a.shape[0] != n:
-            raise _fail(source, f"key '{name}': length {a.shape[0]} does not match len(t) = {n}")
-        fin = np.isfinite(a.astype(np.float64))
-        if not fin.all():
-            i, *rest = np.argwhere(~fin)[0]
-            if rest and csv_rows:
-                label = f"column '{name}_{_VECTOR_KEYS[name][rest[0]]}'"
-            elif rest:
-                label = f"key '{name}' column {rest[0]}"
-            else:
-                label = f"{'column' if csv_rows else 'key'} '{name}'"
-            raise _fail(source, f"{label} {_row_text(int(i), csv_rows)}: non-finite value")
 
-    for name, comps in _VECTOR_KEYS.items():
-        per_sample(name, (len(comps),))
-    for name in _SAMPLE_SCALAR_KEYS:
-        per_sample(name, ())
+def _validate_units(rec: Recording, source: str) -> None:
+    if rec.acc_unit not in ACC_UNITS:
+        raise _fail(source, f"key 'acc_unit': unknown unit {rec.acc_unit!r} (expected one of {', '.join(ACC_UNITS)})")
+    if rec.gyr_unit not in GYR_UNITS:
+        raise _fail(source, f"key 'gyr_unit': unknown unit {rec.gyr_unit!r} (expected one of {', '.join(GYR_UNITS)})")
 
+
+def _cell_label(name: str, comp: int | None, csv_rows: bool) -> str:
+    if comp is not None and csv_rows:
+        return f"column '{name}_{_VECTOR_KEYS[name][comp]}'"
+    if comp is not None:
+        return f"key '{name}' column {comp}"
+    return f"{'column' if csv_rows else 'key'} '{name}'"
+
+
+def _value_limits(rec: Recording, name: str) -> tuple[float, float, str]:
+    """``(low, high, what)``: the range a per-sample key's values must lie in, and why."""
+    if name in ("acc", "gyr") and getattr(rec, f"{name}_unit") == "LSB":
+        return -MAX_COUNT, MAX_COUNT, "raw counts beyond 32 bits"
+    if name == "temp":
+        return ABS_ZERO_C, MAX_VALUE, "a temperature below absolute zero or implausibly large"
+    if name == "seq":
+        return -(2.0**53), 2.0**53, "a sequence id beyond 2**53"
+    return -MAX_VALUE, MAX_VALUE, f"implausibly large (beyond {MAX_VALUE:.0e})"
+
+
+def _validate_per_sample(rec: Recording, name: str, trailing: tuple[int, ...], n: int, source: str,
+                         csv_rows: bool) -> None:
+    """One per-sample key: real numbers, shape ``(N,) + trailing``, finite, within :func:`_value_limits`."""
+    v = getattr(rec, name)
+    if v is None:
+        return
+    a = np.asarray(v)
+    _check_numeric(source, name, a, allow_bool=name == "static")
+    want = "(N,)" if not trailing else f"(N, {trailing[0]})"
+    if a.ndim != 1 + len(trailing) or a.shape[1:] != trailing:
+        raise _fail(source, f"key '{name}': expected shape {want}, got {a.shape}")
+    if a.shape[0] != n:
+        raise _fail(source, f"key '{name}': length {a.shape[0]} does not match len(t) = {n}")
+    af = a.astype(np.float64)
+    fin = np.isfinite(af)
+    if not fin.all():
+        i, *rest = np.argwhere(~fin)[0]
+        raise _fail(source, f"{_cell_label(name, rest[0] if rest else None, csv_rows)} {_row_text(int(i), csv_rows)}: "
+                            "non-finite value")
+    lo, hi, what = _value_limits(rec, name)
+    out = (af < lo) | (af > hi)
+    if out.any():
+        i, *rest = np.argwhere(out)[0]
+        raise _fail(source, f"{_cell_label(name, rest[0] if rest else None, csv_rows)} {_row_text(int(i), csv_rows)}: "
+                            f"value {af[tuple([i, *rest])]:.4g} is {what}")
+
+
+def _validate_seq_static(rec: Recording, source: str, csv_rows: bool) -> None:
+    """``seq``: integer ids, each sequence contiguous; ``static``: booleans (or 0/1)."""
     if rec.seq is not None:
         s = np.asarray(rec.seq)
         if not np.all(s == np.round(s)):
@@ -285,11 +377,21 @@ def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = Fal
             i = int(np.flatnonzero((a != 0) & (a != 1))[0])
             raise _fail(source, f"key 'static' {_row_text(i, csv_rows)}: expected a boolean (0/1), got {a[i]}")
 
-    if rec.acc_unit not in ACC_UNITS:
-        raise _fail(source, f"key 'acc_unit': unknown unit {rec.acc_unit!r} (expected one of {', '.join(ACC_UNITS)})")
-    if rec.gyr_unit not in GYR_UNITS:
-        raise _fail(source, f"key 'gyr_unit': unknown unit {rec.gyr_unit!r} (expected one of {', '.join(GYR_UNITS)})")
 
+def _validate_quaternions(rec: Recording, source: str, csv_rows: bool) -> None:
+    """``quat_ref`` rows must be unit quaternions (within :data:`QUAT_NORM_TOL`)."""
+    if rec.quat_ref is None:
+        return
+    norm = np.linalg.norm(np.asarray(rec.quat_ref, np.float64), axis=1)
+    bad = np.flatnonzero(np.abs(norm - 1.0) > QUAT_NORM_TOL)
+    if bad.size:
+        i = int(bad[0])
+        raise _fail(source, f"key 'quat_ref' {_row_text(i, csv_rows)}: quaternion norm {norm[i]:.4g}, "
+                            "not a unit quaternion (Hamilton [w, x, y, z])")
+
+
+def _validate_meta(rec: Recording, source: str) -> None:
+    """``fs`` positive and finite; datasheet values real, scalar or (3,), finite, scales positive."""
     if rec.fs is not None and not (math.isfinite(rec.fs) and rec.fs > 0):
         raise _fail(source, f"key 'fs': sample rate must be positive and finite, got {rec.fs}")
     for name in _META_SPEC_KEYS:
@@ -300,10 +402,97 @@ def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = Fal
         _check_numeric(source, name, a)
         if a.shape not in ((), (3,)):
             raise _fail(source, f"key '{name}': expected a scalar or shape (3,), got {a.shape}")
-        if not np.all(np.isfinite(a)):
-            raise _fail(source, f"key '{name}': non-finite value")
-        if name.endswith(("per_g", "per_rads")) and np.any(a == 0):
-            raise _fail(source, f"key '{name}': scale must be non-zero")
+        af = a.astype(np.float64)
+        if not np.all(np.isfinite(af)) or np.any(np.abs(af) > MAX_VALUE):
+            raise _fail(source, f"key '{name}': non-finite or implausibly large value {af.tolist()}")
+        if name.endswith(("per_g", "per_rads")) and np.any(af <= 0):
+            raise _fail(source, f"key '{name}': datasheet scale must be positive, got {af.tolist()} "
+                                "(an inverted axis is part of the calibration, not of the datasheet)")
+
+
+def _validate_fs(rec: Recording, source: str) -> None:
+    """``fs`` must match the spacing of ``t`` within sequences: refused when neither the median
+    step (robust to gaps) nor the mean step (robust to jitter) is within :data:`FS_TOLERANCE` of
+    ``1 / fs`` (e.g. ``fs`` = 1000 Hz beside a ``t`` that steps at 100 Hz)."""
+    if rec.fs is None:
+        return
+    t = np.asarray(rec.t, np.float64)
+    steps = np.concatenate([np.diff(t[s]) for s in sequence_slices(rec)])
+    if steps.size == 0:
+        return
+    ratios = [rec.fs * float(np.median(steps)), rec.fs * float(np.mean(steps))]
+    if all(abs(np.log(r)) > np.log1p(FS_TOLERANCE) for r in ratios):
+        rate = 1.0 / float(np.median(steps))
+        raise _fail(source, f"key 'fs': {rec.fs:.6g} Hz, but 't' steps at {rate:.6g} Hz (median spacing "
+                            f"{1.0 / rate:.6g} s); fix 'fs' or leave it out")
+
+
+# ----------------------------------------------------------------------------- plausibility
+
+
+def implausible(sensor: str, x: np.ndarray, how: str) -> str | None:
+    """What contradicts values ``x`` (N, 3) being in g (``acc``) or rad/s (``gyr``), or ``None``.
+
+    The median ``|f|`` of a resting or hand-held accelerometer lies in :data:`ACC_NORM_G` (near 1 g);
+    outside, the unit is off by a large factor (m/s^2 declared as g reads ~9.8). A median rate
+    above :data:`GYR_MEDIAN_MAX` or a 99th percentile above :data:`GYR_Q99_MAX` (2000 deg/s) means
+    deg/s declared as rad/s. ``how`` says where the values came from (e.g. "after unit conversion").
+    """
+    with np.errstate(over="ignore", invalid="ignore"):  # huge values are refused elsewhere, with their row
+        norm = np.linalg.norm(np.asarray(x, np.float64), axis=-1).ravel()
+    norm = norm[np.isfinite(norm)]  # non-finite values are refused elsewhere, with their row
+    if norm.size == 0:
+        return None
+    med = float(np.median(norm))
+    if sensor == "acc":
+        if ACC_NORM_G[0] <= med <= ACC_NORM_G[1]:
+            return None
+        hint = " (looks like m/s^2)" if 5.0 < med < 15.0 else ""
+        return f"median |acc| is {med:.3g} g {how}, not near 1 g{hint}"
+    q99 = float(np.quantile(norm, 0.99))
+    if med > GYR_MEDIAN_MAX:
+        return f"median |gyr| is {med:.3g} rad/s {how}, faster than any hand or rig turns (deg/s declared as rad/s?)"
+    if q99 > GYR_Q99_MAX:
+        return f"99th percentile of |gyr| is {q99:.3g} rad/s {how}, beyond 2000 deg/s (deg/s declared as rad/s?)"
+    return None
+
+
+_SCALE_KEY = {"acc": ("acc_lsb_per_g", "acc_bias_lsb"), "gyr": ("gyr_lsb_per_rads", "gyr_bias_lsb")}
+_PHYS = {"acc": "g", "gyr": "rad/s"}
+_SENSOR_WORD = {"acc": "accelerometer", "gyr": "gyroscope"}
+
+
+def _physical_values(rec: Recording, s: str) -> tuple[np.ndarray, str, str] | None:
+    """Sensor ``s`` in g / rad/s with how it got there and what to blame, or ``None`` (raw counts
+    without a datasheet scale cannot be judged)."""
+    y = np.asarray(getattr(rec, s), np.float64)
+    if getattr(rec, f"{s}_unit") == _PHYS[s]:
+        return y, f"with {s}_unit = {_PHYS[s]!r}", f"the declared {_SENSOR_WORD[s]} unit is wrong"
+    scale_key, bias_key = _SCALE_KEY[s]
+    scale, bias = getattr(rec, scale_key), getattr(rec, bias_key)
+    if scale is None:
+        return None
+    x = (y - np.asarray(0.0 if bias is None else bias, np.float64)) / np.asarray(scale, np.float64)
+    return x, f"after the datasheet scale '{scale_key}'", f"the datasheet scale '{scale_key}' or the unit is wrong"
+
+
+def check_plausible(rec: Recording, source: str = "") -> None:
+    """Refuse declared units or datasheet scales that the data contradict (:func:`implausible`).
+
+    Judges ``acc``/``gyr`` declared in g / rad/s, raw counts converted with the datasheet scale
+    where the recording gives one, and the labels ``acc_ref`` (g) and ``gyr_ref`` (rad/s).
+    Raises :class:`RecordingError` naming the key.
+    """
+    for s in ("acc", "gyr"):
+        got = None if getattr(rec, s) is None else _physical_values(rec, s)
+        why = None if got is None else implausible(s, got[0], got[1])
+        if why:
+            raise _fail(source, f"key '{s}': {why}; {got[2]}")
+    for s, key in (("acc", "acc_ref"), ("gyr", "gyr_ref")):
+        x = getattr(rec, key)
+        why = None if x is None else implausible(s, x, "in the labels")
+        if why:
+            raise _fail(source, f"key '{key}': {why}; labels must be in {_PHYS[s]}")
 
 
 def sequence_bounds(seq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -320,15 +509,52 @@ def sequence_slices(rec: Recording) -> list[slice]:
     return [slice(int(a), int(b)) for a, b in zip(*sequence_bounds(rec.seq))]
 
 
+# ----------------------------------------------------------------------------- writing
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix) to write; on success it replaces ``path``.
+
+    Any failure, Ctrl-C included, removes the temporary file and leaves ``path`` as it was: an
+    earlier file there is never truncated or destroyed, and nothing is left behind. The writer
+    creates the temporary file itself (so it gets the usual permissions).
+    """
+    p = Path(path)
+    tmp = p.with_name(f".{p.name}.{secrets.token_hex(4)}.partial{p.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
 # ----------------------------------------------------------------------------- npz
+
+
+NPZ_READ_ERRORS = (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError, zlib.error, MemoryError)
+
+
+def read_npz_arrays(path: Path) -> dict[str, np.ndarray]:
+    """Every array of an ``.npz`` file (no pickles); the file is closed even when it is not one.
+
+    Raises one of :data:`NPZ_READ_ERRORS` (a single ``.npy`` array is a ``ValueError``).
+    """
+    with open(path, "rb") as fh:
+        z = np.load(fh, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise ValueError("a single .npy array, not an .npz archive of named arrays")
+        with z:
+            return {k: z[k] for k in z.files}
 
 
 def _load_npz(path: Path) -> dict[str, Any]:
     try:
-        with np.load(path, allow_pickle=False) as z:
-            return {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, KeyError) as e:
-        raise _fail(str(path), f"cannot read as .npz ({type(e).__name__}: {e})") from None
+        return read_npz_arrays(path)
+    except NPZ_READ_ERRORS as e:
+        raise _fail(str(path), f"cannot read as .npz ({type(e).__name__}: {' '.join(str(e).split())[:120]})") from None
 
 
 def _save_npz(rec: Recording, path: Path) -> None:
@@ -363,7 +589,7 @@ def _format_cell(x: Any) -> str:
     return repr(float(x))
 
 
-def _save_csv(rec: Recording, path: Path) -> None:
+def _save_csv(rec: Recording, path: Path, sidecar: Path) -> None:
     n = rec.n
     header: list[str] = []
     columns: list[np.ndarray] = []
@@ -402,7 +628,7 @@ def _save_csv(rec: Recording, path: Path) -> None:
         w.writerow(header)
         for i in range(n):
             w.writerow([_format_cell(c[i]) for c in columns])
-    with open(_sidecar(path), "w") as fh:
+    with open(sidecar, "w") as fh:
         json.dump(meta, fh, indent=1, sort_keys=True)
 
 
@@ -420,7 +646,7 @@ def _parse_cell(cell: str, src: str, col: str, i: int) -> float:
 def _load_csv(path: Path) -> dict[str, Any]:
     src = str(path)
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise _fail(src, f"cannot read as .csv ({type(e).__name__}: {e})") from None
@@ -428,6 +654,8 @@ def _load_csv(path: Path) -> dict[str, Any]:
     if not rows:
         raise _fail(src, "empty file (expected a header row)")
     header = [h.strip() for h in rows[0]]
+    if "" in header:
+        raise _fail(src, f"column {header.index('') + 1} of the header has no name")
     if len(set(header)) != len(header):
         dup = next(h for h in header if header.count(h) > 1)
         raise _fail(src, f"column '{dup}' appears twice in the header")
@@ -490,7 +718,7 @@ def _load_csv(path: Path) -> dict[str, Any]:
     side = _sidecar(path)
     if side.exists():
         try:
-            with open(side) as fh:
+            with open(side, encoding="utf-8") as fh:
                 meta = json.load(fh)
         except (OSError, ValueError) as e:
             raise _fail(str(side), f"cannot read JSON sidecar ({type(e).__name__}: {e})") from None
@@ -504,11 +732,19 @@ def _load_csv(path: Path) -> dict[str, Any]:
                     raise _fail(str(side), f"key '{k}': expected a unit string, got {v!r}")
                 out[k] = v
             else:
-                try:
-                    out[k] = np.asarray(v)
-                except ValueError:
-                    raise _fail(str(side), f"key '{k}': not a number or list of numbers") from None
+                out[k] = _sidecar_value(side, k, v)
     return out
+
+
+def _sidecar_value(side: Path, k: str, v: Any) -> np.ndarray:
+    """A sidecar entry as an array: a number, a string, or a (nested) list of numbers."""
+    try:
+        a = np.asarray(v)
+    except ValueError:
+        a = np.asarray(None)
+    if a.dtype.kind not in "biufU":
+        raise _fail(str(side), f"key '{k}': expected a number, a string or a list of numbers, got {type(v).__name__}")
+    return a
 
 
 # ----------------------------------------------------------------------------- public API
@@ -538,7 +774,8 @@ def load_recording(path: str | os.PathLike) -> Recording:
 def save_recording(rec: Recording, path: str | os.PathLike) -> None:
     """Validate ``rec`` and write it as ``.npz`` or ``.csv`` (+ ``<stem>.json`` sidecar).
 
-    The format follows the extension. Raises :class:`RecordingError` if ``rec`` is invalid or
+    The format follows the extension. Files are written whole or not at all
+    (:func:`atomic_output`). Raises :class:`RecordingError` if ``rec`` is invalid or
     the extension is unknown.
     """
     p = Path(path)
@@ -548,8 +785,10 @@ def save_recording(rec: Recording, path: str | os.PathLike) -> None:
     validate_recording(rec, str(p))
     try:
         if ext == ".npz":
-            _save_npz(rec, p)
+            with atomic_output(p) as tmp:
+                _save_npz(rec, tmp)
         else:
-            _save_csv(rec, p)
+            with atomic_output(p) as tmp, atomic_output(_sidecar(p)) as tmp_side:
+                _save_csv(rec, tmp, tmp_side)
     except OSError as e:
         raise _fail(str(p), f"cannot write ({e.strerror or e})") from None

@@ -382,7 +382,12 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         if att is not None:
             mds[c]["attenuation"] = att.tolist()
             mds[c]["block_inflation"] = mds_infl[c].tolist()
-        if (c, s) in E.PLAUSIBLE and float(np.median(comp)) > E.PLAUSIBLE[(c, s)]:
+        if c.startswith("temperature") and np.ptp(np.asarray(sd.inp.dT)[fit_rows]) == 0:
+            warnings.append(  # a constant temp channel is no temperature channel: no size to report
+                f"{s} {c}: not testable - the recording has no temperature channel that changes (temp is constant); "
+                f"needs {EXCITE[c]}"
+            )
+        elif (c, s) in E.PLAUSIBLE and float(np.median(comp)) > E.PLAUSIBLE[(c, s)]:
             warnings.append(
                 f"{s} {c}: not excited - smallest detectable size {float(np.median(comp)):.3g} {E.UNITS[(c, s)]} "
                 f"exceeds a plausible {E.PLAUSIBLE[(c, s)]:.3g}; needs {EXCITE[c]}"

@@ -38,8 +38,8 @@ Modules, in the order data flows through them (every name is re-exported here):
 * ``fit``: :func:`fit_prepared` (pure JAX, vmappable over weights), :func:`fit_multipos`;
 * ``observe``: :func:`observability`, :func:`check_observable`;
 * ``detect``: :func:`fit_multipos_recording` (interval detection with imu_tk's threshold scan,
-  then the fit and the check; forward-model :class:`~jaxcal.sensor.Affine` pairs for
-  ``jaxcal calibrate --method multipos``);
+  then the fit and its checks, observability and :func:`check_turns` for given turns;
+  forward-model :class:`~jaxcal.sensor.Affine` pairs for ``jaxcal calibrate --method multipos``);
 * ``heldout``: :func:`leave_poses_out`;
 * ``timesplit``: a held-out time split of a continuous Ferraris session (:func:`time_split`), fair
   to a labelled tool such as imucal and to multipos.
@@ -98,6 +98,8 @@ from jaxcal.multipos.detect import (  # noqa: F401
     detect_and_fit,
     fit_summary,
     fit_multipos_recording,
+    TURN_TOL_DEG,
+    check_turns,
 )
 from jaxcal.multipos.heldout import (  # noqa: F401
     HeldOut,

@@ -81,6 +81,29 @@ def _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gy
     return _fit_numpy(data, config, turns), det, data, turns
 
 
+TURN_TOL_DEG = 20.0  # a real whole turn closes within a degree or two after the fit
+
+
+def check_turns(fit: MultiposFit, turns: VerticalTurns, times: Any) -> None:
+    """Refuse turns the data contradict: after the fit, a window given as a whole turn about the
+    vertical must integrate (with the calibrated gyroscope) to within :data:`TURN_TOL_DEG` of one.
+    A window that is not a whole turn (wrong times, e.g. another session's) cannot be fitted to
+    one, and would only bend the gyroscope calibration towards it. Raises ``ValueError`` naming the
+    first such turn, its times and the angle the gyroscope measures there."""
+    with jax.enable_x64(True):
+        tj = jax.tree_util.tree_map(jnp.asarray, turns)
+        err = np.degrees(np.asarray(vertical_turn_errors(fit.gyr, fit.gsens, fit.acc, tj)))
+        rate_int = np.asarray(tj.y_int - fit.gyr.b * tj.dt_sum[:, None]) @ np.asarray(fit.gyr.A).T
+    angle = np.degrees(np.linalg.norm(rate_int, axis=1))
+    tt = np.asarray(times, np.float64).reshape(-1, 2)
+    for k in np.flatnonzero((err > TURN_TOL_DEG) & np.asarray(turns.seg_ok)):  # saturated turns are not fitted
+        claimed = np.degrees(float(turns.angle[k]))
+        raise ValueError(
+            f"turn {k + 1} ({tt[k, 0]:g}-{tt[k, 1]:g} s): the calibrated gyroscope measures {angle[k]:.1f} deg of "
+            f"rotation there, not a whole {claimed:.0f} deg turn about the vertical (it misses one by {err[k]:.0f} "
+            "deg); check the turn times (--turns) against this recording")
+
+
 def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None,
                 obs: Observability | None = None) -> dict:
     """In-sample quality of a fit on its own poses, for the user to judge a calibration: pose and
@@ -119,6 +142,8 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     unless ``partial``: then, for a recording already in g and rad/s, the accelerometer is fitted
     by :func:`fit_acc_determined` (only the determined combinations move) and an undetermined
     gyroscope is left as recorded (its model is ``None``); the summary's ``partial`` says which.
+    Turns (``turn_times``) that the calibrated gyroscope does not measure as whole turns raise
+    (:func:`check_turns`), as the observability check does, unless ``check=False``.
     """
     get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
     t, acc, gyr = get("t"), get("acc"), get("gyr")
@@ -135,6 +160,8 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
     check = kwargs.pop("check", True)
     defaults = {k: v for k, v in detect_and_fit.__kwdefaults__.items() if k != "check"}
     fit, _, data, turns = _detect_fit(t, acc, gyr, config, **(defaults | kwargs))
+    if turns is not None and check:
+        check_turns(fit, turns, kwargs["turn_times"])
     obs = observability(data, fit, turns=turns) if check or summary or partial else None
     kept = {}
     if partial:
