@@ -138,9 +138,10 @@ def test_vmap_over_hparams_equals_separate_runs(small_data):
     Compared where the invariant is exact: float64 and a 24-sequence horizon. (In float32 over 200
     sequences, batched reductions round differently and Adam amplifies the last bits: one curve
     point of 804 drifted 3.1 % on a 2-core machine, a verdict that hung on reduction order.)
-    Measured deviation in float64: 0.0 (bit-identical) in every run of the near-threshold scan
-    (cold/warm cache, two host devices, other hash seeds); rtol 1e-12 leaves room for a compiler
-    that reassociates a float64 sum, while a wrong batching axis moves the curves by > 10 %.
+    Measured deviation in float64: 0.0 (bit-identical) in the five normal runs of the near-threshold
+    scan; with XLA's fast math (reassociated sums, approximate transcendentals) at most 1.8e-7
+    absolute and 6.5e-6 relative. Tolerance 1e-6 + 1e-4 relative keeps a 5x margin there, while a
+    wrong batching axis moves the curves by > 10 %.
     """
     m = 24
     with jax.enable_x64(True):
@@ -159,7 +160,7 @@ def test_vmap_over_hparams_equals_separate_runs(small_data):
     assert batched.e_g.dtype == jnp.float64 and batched.e_g.shape == (2, m + 1)
     for i, single in enumerate(singles):
         for b, s in zip(jax.tree.leaves(batched), jax.tree.leaves(single)):
-            np.testing.assert_allclose(np.asarray(b)[i], np.asarray(s), rtol=1e-12, atol=1e-300)
+            np.testing.assert_allclose(np.asarray(b)[i], np.asarray(s), rtol=1e-4, atol=1e-6)
     # The two configurations really differ, so equality above is not vacuous.
     other = np.abs(np.asarray(batched.e_g)[0] - np.asarray(singles[1].e_g)) / np.asarray(singles[1].e_g)
     assert float(np.mean(other)) > 0.05
