@@ -6,8 +6,8 @@ STAMP   := $(VENV)/.installed
 # The exact versions the suite was last run with (`make lock` refreshes it; `make test-latest` tries newer).
 LOCK    := constraints.txt
 # One worker per core, one test file per worker (module fixtures are built once; `-n 0` runs serially);
-# the 20 slowest steps are listed, since the suite is the loop every change goes through.
-PYTEST_ARGS ?= -q -ra -n auto --dist loadfile --durations=20
+# the 30 slowest steps are listed, since the suite is the loop every change goes through.
+PYTEST_ARGS ?= -q -ra -n auto --dist loadfile --durations=30
 # JAX persistent compilation cache: compile time dominates on CPU.
 export JAX_COMPILATION_CACHE_DIR := $(CURDIR)/.jax_cache
 export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS := 0.5
