@@ -1,6 +1,6 @@
 """Build the repository's compact copies of the public recordings (run once; outputs committed).
 
-    .venv/bin/python data/convert.py [--src ../shared/data]
+    .venv/bin/python data/convert.py [--src ../shared/data] [--broad-only]
 
 Reads the byte-for-byte copies in ``../shared/data/<name>/`` with :mod:`jaxcal.readers` and writes
 ``data/<name>/``:
@@ -13,8 +13,10 @@ Reads the byte-for-byte copies in ``../shared/data/<name>/`` with :mod:`jaxcal.r
 * ``README.md``: the upstream README (provenance, license, reference values) plus a note on
   what was converted.
 
-No scipy is needed: the imu_tk ``.mat`` files are plain ASCII. Nothing in tests or experiments
-reads ``../shared`` at run time.
+The imu_tk ``.mat`` files are plain ASCII; the BROAD ``.mat`` files are MATLAB 5 binaries, read
+with scipy (a jaxcal dependency), and their format excerpt ``*_head.mat`` is the first
+``BROAD_HEAD`` samples of every variable re-written with ``scipy.io.savemat``. Nothing in tests or
+experiments reads ``../shared`` at run time.
 """
 
 from __future__ import annotations
@@ -30,6 +32,9 @@ sys.path.insert(0, str(HERE.parent))
 from jaxcal import readers  # noqa: E402
 
 HEAD_LINES = 400
+BROAD_HEAD = 2000  # samples in the BROAD format excerpts (7 s: static start, first mocap gaps)
+BROAD_TRIALS = ("07_undisturbed_fast_rotation_B", "21_undisturbed_fast_combined")
+BROAD_LICENSE = "LICENSE_BROAD_CC-BY-4.0.txt"
 
 
 def head(src: Path, dst: Path, n: int = HEAD_LINES) -> None:
@@ -131,8 +136,65 @@ def main(src: Path) -> None:
 - `sensor_data_head.csv`: the first {HEAD_LINES} lines, byte for byte.
 """)
 
+    # BROAD ---------------------------------------------------------------------------------
+    main_broad(src)
+
+
+def main_broad(src: Path) -> None:
+    """Only the BROAD folders (``--broad-only``): ``data/broad_<trial>/``."""
+    for trial in BROAD_TRIALS:
+        broad(src / f"broad_{trial}", HERE / f"broad_{trial}", trial)
+
+
+def broad(s: Path, d: Path, trial: str) -> None:
+    """One BROAD trial: ``<trial>.npz`` (jaxcal recording, float32), ``<trial>_head.mat``, license, README."""
+    import numpy as np
+    import scipy.io
+
+    from jaxcal.recording import recording_from_dict, save_recording
+
+    d.mkdir(exist_ok=True)
+    r = readers.read_dict("broad", [s / f"{trial}.mat"])
+    keep64 = ("t", "fs")
+    r32 = {k: (v.astype(np.float32) if isinstance(v, np.ndarray) and v.dtype == np.float64 and k not in keep64 else v)
+           for k, v in r.items()}
+    save_recording(recording_from_dict(r32, str(s / f"{trial}.mat")), d / f"{trial}.npz")
+    m = scipy.io.loadmat(s / f"{trial}.mat")
+    head_vars = {k: (v[:BROAD_HEAD] if np.ndim(v) == 2 and v.shape[0] == len(r["t"]) else v)
+                 for k, v in m.items() if not k.startswith("__")}
+    scipy.io.savemat(d / f"{trial}_head.mat", head_vars, do_compression=True, oned_as="column")
+    shutil.copyfile(s / BROAD_LICENSE, d / BROAD_LICENSE)
+    ok = r["ref_valid"]
+
+    def gap_rows(a: np.ndarray) -> int:
+        return int(np.isnan(a).any(axis=1).sum())
+
+    readme(s, d, f"""
+- **Attribution (CC BY 4.0):** data from D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD—A
+  Benchmark for Robust Inertial Orientation Estimation", *Data* 6(7):72, 2021,
+  doi:10.3390/data6070072 (https://github.com/dlaidig/broad, file `data_mat/{trial}.mat`, commit
+  `7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad`). Changed here: file format and units (below); no
+  values were cropped, filled or re-synchronised. License text: `{BROAD_LICENSE}` (verbatim copy).
+- `{trial}.npz`: the full trial ({len(r['t'])} samples, {len(r['t']) / r['fs']:.1f} s) as a jaxcal recording
+  (`jaxcal.readers.read_broad`, then `jaxcal.recording.save_recording`, `savez_compressed`):
+  `t = k / sampling_rate` (s, float64; `fs` = {r['fs']:.6f} Hz); `acc` in g (`imu_acc` m/s^2 / 9.80665),
+  `gyr` rad/s (`imu_gyr`), `mag` uT (`imu_mag`), `pos_ref` m (`opt_pos`), `quat_ref` Hamilton
+  `[w, x, y, z]` IMU frame -> ENU = body to world (`opt_quat`, order and direction unchanged,
+  finite rows renormalised), all float32. Mocap gaps stay NaN (whole rows; `pos_ref` NaN in
+  {gap_rows(r['pos_ref'])} rows, `quat_ref` NaN in {gap_rows(r['quat_ref'])} rows);
+  `ref_valid` (bool) is True where both are finite ({int(ok.sum())} of {ok.size} rows).
+  Extras: `movement` (bool, the file's movement-phase flag), `meta_info` (the `info` text).
+- `{trial}_head.mat`: the first {BROAD_HEAD} samples of every variable of the original `.mat`
+  (same names, shapes and dtypes; `sampling_rate` and `info` whole), re-written with
+  `scipy.io.savemat` (MATLAB 5, compressed) as a format excerpt for the reader tests. Not byte
+  for byte: a MAT file cannot be cut.
+- Rebuild: `.venv/bin/python data/convert.py --broad-only` (without the flag it rewrites every folder of `data/`).
+""")
+
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--src", type=Path, default=HERE.parent.parent / "shared" / "data")
-    main(ap.parse_args().src)
+    ap.add_argument("--broad-only", action="store_true", help="rebuild only the BROAD folders")
+    args = ap.parse_args()
+    (main_broad if args.broad_only else main)(args.src)

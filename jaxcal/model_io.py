@@ -254,6 +254,10 @@ def _require_label_span(rec: Recording, sensor: str, method: str) -> None:
     and a fit would return an arbitrary (yet finite) model."""
     x = np.asarray(getattr(rec, REF_KEY[sensor]), np.float64)
     key = REF_KEY[sensor]
+    gaps = ~np.isfinite(x).all(axis=1)
+    if gaps.any():
+        raise ModelError(f"method '{method}': '{key}' has {int(gaps.sum())} gap rows (NaN), the first at row "
+                         f"{int(np.flatnonzero(gaps)[0])}; a labelled fit needs a label on every sample, so drop those rows first")
     if x.shape[0] < 4:
         n = x.shape[0]
         raise ModelError(f"method '{method}': '{key}' has {n} labelled sample{'' if n == 1 else 's'}; a 3-axis "

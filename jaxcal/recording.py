@@ -24,7 +24,9 @@ key                shape      meaning (units)
 ``gyr_unit``       str        ``"LSB"`` (default) or ``"rad/s"``
 =================  =========  =======================================================
 
-At least one of ``acc`` and ``gyr`` must be present. Keys not in this table are kept in
+At least one of ``acc`` and ``gyr`` must be present. A row of NaN in ``acc_ref``, ``gyr_ref``,
+``pos_ref`` or ``quat_ref`` marks a reference gap (no reference at that sample); every other
+value must be finite. Keys not in this table are kept in
 :attr:`Recording.extra` and written back out (never silently dropped).
 
 CSV layout: a header row, then one row per sample, columns ``t, acc_x, acc_y, acc_z, gyr_x,
@@ -84,6 +86,8 @@ _VECTOR_KEYS: dict[str, tuple[str, ...]] = {
     "pos_ref": ("x", "y", "z"),
     "quat_ref": ("w", "x", "y", "z"),
 }
+# Reference keys: a row of NaN marks a reference gap ("no reference here"); inf is never allowed.
+REF_GAP_KEYS = ("acc_ref", "gyr_ref", "pos_ref", "quat_ref")
 _SAMPLE_SCALAR_KEYS = ("temp", "seq", "static")
 _META_SCALAR_KEYS = ("fs",)
 _META_SPEC_KEYS = ("acc_lsb_per_g", "acc_bias_lsb", "gyr_lsb_per_rads", "gyr_bias_lsb")
@@ -246,10 +250,11 @@ def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = Fal
 
     Checks: ``t`` present, 1-D, finite, strictly increasing; ``acc`` or ``gyr`` present; every
     per-sample key has ``N`` rows and the right trailing shape, real numbers (``static`` may be
-    boolean), finite and of plausible size (raw counts within 32 bits); units known; ``seq``
-    integer-valued with contiguous ids; ``static`` boolean; ``quat_ref`` of unit norm; metadata
-    scalar or (3,), finite, scales positive, ``fs`` positive and matching the spacing of ``t``;
-    and the declared units plausible (:func:`check_plausible`).
+    boolean), finite and of plausible size (raw counts within 32 bits), except that a whole row
+    of NaN in a reference key (:data:`REF_GAP_KEYS`) marks a reference gap; units known; ``seq``
+    integer-valued with contiguous ids; ``static`` boolean; ``quat_ref`` of unit norm (gap rows
+    skipped); metadata scalar or (3,), finite, scales positive, ``fs`` positive and matching the
+    spacing of ``t``; and the declared units plausible (:func:`check_plausible`).
 
     Args:
         rec: the recording.
@@ -341,10 +346,15 @@ def _validate_per_sample(rec: Recording, name: str, trailing: tuple[int, ...], n
         raise _fail(source, f"key '{name}': length {a.shape[0]} does not match len(t) = {n}")
     af = a.astype(np.float64)
     fin = np.isfinite(af)
+    if name in REF_GAP_KEYS:  # a whole row of NaN is a reference gap
+        fin |= np.isnan(af).all(axis=1, keepdims=True)
     if not fin.all():
         i, *rest = np.argwhere(~fin)[0]
+        why = "non-finite value"
+        if name in REF_GAP_KEYS and np.isnan(af[(i, *rest)]):
+            why += " (NaN in part of the row; a reference gap is a whole row of NaN)"
         raise _fail(source, f"{_cell_label(name, rest[0] if rest else None, csv_rows)} {_row_text(int(i), csv_rows)}: "
-                            "non-finite value")
+                            f"{why}")
     lo, hi, what = _value_limits(rec, name)
     out = (af < lo) | (af > hi)
     if out.any():
@@ -379,7 +389,7 @@ def _validate_seq_static(rec: Recording, source: str, csv_rows: bool) -> None:
 
 
 def _validate_quaternions(rec: Recording, source: str, csv_rows: bool) -> None:
-    """``quat_ref`` rows must be unit quaternions (within :data:`QUAT_NORM_TOL`)."""
+    """``quat_ref`` rows must be unit quaternions (within :data:`QUAT_NORM_TOL`); NaN gap rows are skipped."""
     if rec.quat_ref is None:
         return
     norm = np.linalg.norm(np.asarray(rec.quat_ref, np.float64), axis=1)

@@ -275,6 +275,8 @@ SPEC_CASES: dict[str, Case] = {
     "datasheet scale in LSB/(m/s^2)": Case(_rec_case("calibrate", "online", acc_lsb_per_g=np.asarray(ACC_LSB / 9.80665)),
                                            ("'acc'", "datasheet scale 'acc_lsb_per_g'")),
     "imu_tk counts above int32": Case(_imu_tk_big, ("acc.txt", "row 3", "does not fit 32 bits")),
+    "acc_ref with a gap row to a labelled fit": Case(_rec_case("calibrate", acc_ref=np.where(np.arange(40)[:, None] == 7, np.nan, _G["acc_ref"])),
+                                                    ("'acc_ref' has 1 gap rows", "row 7")),
     # memory
     "unbalanced 22k-sample layout": Case(_rec_case("calibrate", "online", _only=_layout(11_000, 11_000)),
                                          ("pad to", "longest 11000")),

@@ -190,7 +190,9 @@ def test_npz_round_trip(tmp_path):
 
 @pytest.mark.parametrize("name", ["imu_tk_xsens_multipos/xsens.npz", "tomisuarez_mpu6050/calibration.npz",
                                   "imucal_ferraris_example/session.npz", "tumvi_room1_512_16/room1.npz",
-                                  "xio_fusion_sensor_data/sensor_data.npz"])
+                                  "xio_fusion_sensor_data/sensor_data.npz",
+                                  "broad_07_undisturbed_fast_rotation_B/07_undisturbed_fast_rotation_B.npz",
+                                  "broad_21_undisturbed_fast_combined/21_undisturbed_fast_combined.npz"])
 def test_compact_data_files_follow_conventions(name):
     rec = readers.load_npz(DATA / name)
     n = rec["t"].shape[0]
@@ -207,3 +209,161 @@ def test_read_returns_validated_recording():
     rec = read_rec("tumvi", [d / "imu_head.csv", d / "gt_head.csv"])
     assert isinstance(rec, Recording) and rec.acc_unit == "g" and rec.quat_ref.shape == (rec.n, 4)
     assert rec.extra["gt_quat"].shape[1] == 4
+
+
+# ----------------------------------------------------------------------------- BROAD (.mat)
+
+BROAD_FS = 285.714  # README: sampling_rate 285.714 Hz, t = k / 285.714 s
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v' = q v q* for Hamilton [w, x, y, z] quaternions (numpy, independent of jaxcal)."""
+    w, u = q[:, :1], q[:, 1:]
+    c = 2.0 * np.cross(u, v)
+    return v + w * c + np.cross(u, c)
+
+
+def _broad_mat(tmp_path, n: int = 40, drop: str | None = None, **change) -> Path:
+    """A tiny BROAD-like file: at rest with the IMU's y axis up (90 deg about x), mocap gaps."""
+    c = math.sqrt(0.5)
+    q = np.tile([c, c, 0.0, 0.0], (n, 1))
+    q[[4, 10, 11, 12]] = np.nan
+    pos = np.tile([0.1, -0.5, 1.2], (n, 1))
+    pos[[3, 4, 5]] = np.nan
+    v = {"imu_acc": np.tile([0.0, G0, 0.0], (n, 1)), "imu_gyr": np.full((n, 3), 1e-3),
+         "imu_mag": np.tile([0.0, 15.0, -40.0], (n, 1)), "opt_quat": q, "opt_pos": pos,
+         "sampling_rate": np.array([[100.0]]), "movement": (np.arange(n)[:, None] >= n // 2).astype(np.uint8),
+         "info": "synthetic BROAD-like trial"}
+    v.update(change)
+    v.pop(drop, None)
+    p = tmp_path / "tiny.mat"
+    scipy_io().savemat(p, v)
+    return p
+
+
+def scipy_io():
+    import scipy.io
+
+    return scipy.io
+
+
+@pytest.mark.parametrize("trial,first_valid", [("07_undisturbed_fast_rotation_B", 791),
+                                                ("21_undisturbed_fast_combined", 1372)])
+def test_broad_real_format_excerpt_units_time_gaps_and_quaternion_convention(trial, first_valid):
+    rec = read("broad", [DATA / f"broad_{trial}" / f"{trial}_head.mat"])
+    assert rec["acc"].shape == (2000, 3) and rec["gyr"].shape == (2000, 3) and rec["mag"].shape == (2000, 3)
+    assert rec["pos_ref"].shape == (2000, 3) and rec["quat_ref"].shape == (2000, 4)
+    assert rec["acc_unit"] == "g" and rec["gyr_unit"] == "rad/s"
+    assert rec["fs"] == pytest.approx(BROAD_FS, rel=1e-5)
+    np.testing.assert_allclose(np.diff(rec["t"]), 1 / BROAD_FS, rtol=1e-5)
+    assert rec["t"][0] == 0.0
+    # static start (movement begins later): |f| ~ 1 g (README: 9.82 m/s^2)
+    assert not rec["movement"].any() and rec["movement"].dtype == bool
+    assert np.median(np.linalg.norm(rec["acc"], axis=1)) == pytest.approx(9.82 / G0, rel=0.01)
+    # README: opt_quat NaN from the start up to first_valid; NaN kept, rows valid after it
+    ok = rec["ref_valid"]
+    assert not ok[:first_valid].any() and ok[first_valid]
+    assert np.isnan(rec["quat_ref"][:first_valid]).all()
+    np.testing.assert_allclose(np.linalg.norm(rec["quat_ref"][ok], axis=1), 1.0, atol=1e-12)
+    # README check: the static accelerometer rotated by quat_ref into ENU is [0.01, -0.04, 9.82] m/s^2
+    f_world = _rotate(rec["quat_ref"][ok][:500], rec["acc"][ok][:500]).mean(axis=0)
+    assert f_world[2] == pytest.approx(9.82 / G0, rel=0.01)
+    assert np.all(np.abs(f_world[:2]) < 0.06 / G0)
+
+
+@pytest.mark.parametrize("trial,n,seconds,quat_nan,pos_nan,gap_rows,gyr_max", [
+    ("07_undisturbed_fast_rotation_B", 52518, 183.8, 1594, 0, 1594, 25.4),
+    ("21_undisturbed_fast_combined", 53612, 187.6, 2226, 219, 2226, 14.2),  # pos gaps lie inside quat gaps
+])
+def test_broad_compact_copies_keep_the_readme_gaps(trial, n, seconds, quat_nan, pos_nan, gap_rows, gyr_max):
+    from jaxcal.recording import load_recording
+
+    path = DATA / f"broad_{trial}" / f"{trial}.npz"
+    assert path.stat().st_size < 3e6
+    rec = load_recording(path)
+    assert rec.n == n and rec.acc_unit == "g" and rec.gyr_unit == "rad/s"
+    assert rec.fs == pytest.approx(BROAD_FS, rel=1e-5) and rec.n / rec.fs == pytest.approx(seconds, abs=0.05)
+    np.testing.assert_allclose(np.diff(rec.t), 1 / BROAD_FS, rtol=1e-5)
+    q_gap, p_gap = np.isnan(rec.quat_ref).any(axis=1), np.isnan(rec.pos_ref).any(axis=1)
+    assert q_gap.sum() == quat_nan and p_gap.sum() == pos_nan
+    assert np.isnan(rec.quat_ref[q_gap]).all() and np.isnan(rec.pos_ref[p_gap]).all()  # whole rows
+    ok = rec.extra["ref_valid"]
+    assert ok.dtype == bool and (~ok).sum() == gap_rows and (~ok).sum() == (q_gap | p_gap).sum()
+    assert np.linalg.norm(rec.gyr, axis=1).max() == pytest.approx(gyr_max, abs=0.1)  # README peak (14.15: "14.2")
+    still = ~rec.extra["movement"] & ok
+    f_world = _rotate(rec.quat_ref[still][:500].astype(np.float64), rec.acc[still][:500].astype(np.float64))
+    assert f_world.mean(axis=0)[2] == pytest.approx(9.82 / G0, rel=0.01)
+
+
+def test_broad_synthetic_file_units_gaps_and_convention(tmp_path):
+    rec = read("broad", [_broad_mat(tmp_path)])
+    n = 40
+    np.testing.assert_allclose(rec["t"], np.arange(n) / 100.0)
+    assert rec["fs"] == 100.0
+    np.testing.assert_allclose(rec["acc"], [[0, 1, 0]] * n, atol=1e-12)  # m/s^2 / 9.80665 -> g
+    np.testing.assert_allclose(rec["gyr"], 1e-3)
+    np.testing.assert_allclose(rec["mag"][0], [0, 15, -40])
+    ok = rec["ref_valid"]
+    assert ok.shape == (n,) and ok.dtype == bool
+    assert sorted(np.flatnonzero(~ok)) == [3, 4, 5, 10, 11, 12]  # union of the pos and quat gaps
+    assert np.isnan(rec["pos_ref"][[3, 4, 5]]).all() and np.isfinite(rec["pos_ref"][10:13]).all()  # not filled
+    assert np.isnan(rec["quat_ref"][[4, 10, 11, 12]]).all() and np.isfinite(rec["quat_ref"][3]).all()
+    # IMU y axis up: quat_ref (body to world) takes the specific force to +1 g along world z
+    np.testing.assert_allclose(_rotate(rec["quat_ref"][ok], rec["acc"][ok]), [[0, 0, 1]] * ok.sum(), atol=1e-12)
+    assert rec["movement"].tolist() == [False] * 20 + [True] * 20
+    assert rec["meta_info"] == "synthetic BROAD-like trial"
+
+
+@pytest.mark.parametrize("var", ["imu_acc", "imu_gyr", "opt_quat", "opt_pos", "sampling_rate"])
+def test_broad_missing_variable_is_named(tmp_path, var):
+    p = _broad_mat(tmp_path, drop=var)
+    with pytest.raises(ReaderError, match=f"variable '{var}' not found") as e:
+        read("broad", [p])
+    assert str(p) in str(e.value) and "\n" not in str(e.value)
+
+
+def test_broad_bad_values_are_refused(tmp_path):
+    pos = np.zeros((40, 3))
+    pos[7, 1] = np.inf
+    with pytest.raises(ReaderError, match=r"variable 'opt_pos' row 7: infinite"):
+        read("broad", [_broad_mat(tmp_path, opt_pos=pos)])
+    with pytest.raises(ReaderError, match=r"variable 'imu_gyr': expected shape \(40, 3\)"):
+        read("broad", [_broad_mat(tmp_path, imu_gyr=np.zeros((39, 3)))])
+    with pytest.raises(ReaderError, match=r"variable 'opt_quat' .*not a unit quaternion"):
+        read("broad", [_broad_mat(tmp_path, opt_quat=np.tile([2.0, 0, 0, 0], (40, 1)))])
+    with pytest.raises(ReaderError, match=r"variable 'imu_acc'.*not near 1 g"):
+        read("broad", [_broad_mat(tmp_path, imu_acc=np.tile([0.0, G0 * G0, 0.0], (40, 1)))])
+    junk = tmp_path / "junk.mat"
+    junk.write_text("hello\n" * 20)
+    with pytest.raises(ReaderError, match="not a readable MATLAB .mat file"):
+        read("broad", [junk])
+    with pytest.raises(ReaderError, match="takes 1..1 files"):
+        read("broad", [junk, junk])
+
+
+def test_broad_recording_round_trip_keeps_nan_gaps(tmp_path):
+    from jaxcal.readers import read as read_rec
+    from jaxcal.recording import load_recording, save_recording
+
+    rec = read_rec("broad", [_broad_mat(tmp_path)])
+    for name in ("r.npz", "r.csv"):
+        save_recording(rec, tmp_path / name)
+        back = load_recording(tmp_path / name)
+        np.testing.assert_array_equal(back.pos_ref, rec.pos_ref)  # NaN rows compare equal here
+        np.testing.assert_array_equal(back.quat_ref, rec.quat_ref)
+        assert np.isnan(back.pos_ref[[3, 4, 5]]).all()
+        np.testing.assert_array_equal(back.extra["ref_valid"], rec.extra["ref_valid"])
+
+
+def test_cli_import_broad(tmp_path, capsys):
+    from jaxcal.cli import main
+    from jaxcal.recording import load_recording
+
+    mat = _broad_mat(tmp_path)
+    out = tmp_path / "x.npz"
+    assert main(["import", "broad", str(mat), "--out", str(out)]) == 0
+    rec = load_recording(out)
+    assert rec.n == 40 and rec.acc_unit == "g" and np.isnan(rec.pos_ref[3]).all()
+    assert "wrote" in capsys.readouterr().err
+    assert main(["import", "broad", str(mat), "--fs", "100", "--out", str(tmp_path / "y.npz")]) == 2
+    assert not (tmp_path / "y.npz").exists()

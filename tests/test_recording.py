@@ -172,3 +172,49 @@ def test_valid_inputs_pass_and_validation_is_strict():
         validate_recording(rec.replace(t=np.array([1.0, 0.0])))
     with pytest.raises(RecordingError, match="neither"):
         validate_recording(rec.replace(gyr=None))
+
+
+def test_nan_rows_in_reference_keys_are_gaps():
+    """A whole row of NaN in acc_ref / gyr_ref / pos_ref / quat_ref marks a reference gap and is
+    kept (npz and csv); inf, a partly-NaN row and NaN in t / acc / gyr are still refused."""
+    n = 6
+    q = np.tile([1.0, 0, 0, 0], (n, 1))
+    good = dict(t=np.arange(n) * 0.01, acc=np.tile([0, 0, 1.0], (n, 1)), acc_unit=np.asarray("g"),
+                gyr=np.zeros((n, 3)), gyr_unit=np.asarray("rad/s"), acc_ref=np.tile([0, 0, 1.0], (n, 1)),
+                gyr_ref=np.zeros((n, 3)), pos_ref=np.zeros((n, 3)), quat_ref=q)
+    gappy = {k: (v.astype(np.float64).copy() if k.endswith("_ref") else v) for k, v in good.items()}
+    for k in ("acc_ref", "gyr_ref", "pos_ref", "quat_ref"):
+        gappy[k][[1, 2]] = np.nan
+    rec = recording_from_dict(gappy)
+    assert np.isnan(rec.pos_ref[1]).all() and np.isnan(rec.quat_ref[2]).all()
+    for name, ref in (("partly NaN", np.nan), ("inf", np.inf), ("-inf", -np.inf)):
+        for k in ("acc_ref", "gyr_ref", "pos_ref", "quat_ref"):
+            bad = dict(gappy, **{k: gappy[k].copy()})
+            bad[k][4, 1] = ref
+            with pytest.raises(RecordingError, match=f"'{k}' column 1 row 4: non-finite value"):
+                recording_from_dict(bad)
+    for k in ("acc", "gyr"):
+        a = good[k].astype(np.float64)
+        a[3] = np.nan
+        with pytest.raises(RecordingError, match=f"'{k}' column 0 row 3: non-finite value$"):
+            recording_from_dict(dict(gappy, **{k: a}))
+    with pytest.raises(RecordingError, match="'t' row 0: non-finite"):
+        recording_from_dict(dict(gappy, t=np.r_[np.nan, gappy["t"][1:]]))
+    # a gap row and a non-unit quaternion elsewhere: the norm check skips only the gap
+    q2 = gappy["quat_ref"].copy()
+    q2[5] *= 2
+    with pytest.raises(RecordingError, match="'quat_ref' row 5"):
+        recording_from_dict(dict(gappy, quat_ref=q2))
+
+
+def test_nan_reference_gaps_round_trip(tmp_path):
+    n = 6
+    pos = np.arange(n * 3, dtype=np.float64).reshape(n, 3) / 10
+    pos[2] = np.nan
+    rec = recording_from_dict(dict(t=np.arange(n) * 0.01, gyr=np.zeros((n, 3)), gyr_unit=np.asarray("rad/s"),
+                                   pos_ref=pos))
+    for name in ("r.npz", "r.csv"):
+        save_recording(rec, tmp_path / name)
+        back = load_recording(tmp_path / name)
+        np.testing.assert_array_equal(back.pos_ref, pos)
+        assert np.isnan(back.pos_ref[2]).all() and np.isfinite(back.pos_ref[[0, 1, 3, 4, 5]]).all()
