@@ -1,0 +1,71 @@
+"""Shared test helpers: an analytic rig (attitude and position as sums of sines, so body rate and
+specific force are closed form) with the IMU at the reference point in the reference frame
+(tau = 0, R_ref_imu = I, r = 0). Rotations use scipy.spatial.transform.Rotation, not jaxcal code.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+G0 = 9.80665
+FS = 200.0
+T_END = 60.0
+_rs = np.random.default_rng(12345)
+ROT_A = _rs.uniform(0.2, 0.6, (3, 3))  # (component, harmonic) amplitudes, rad
+ROT_F = _rs.uniform(0.1, 0.9, (3, 3))  # Hz
+ROT_C = _rs.uniform(0, 2 * np.pi, (3, 3))
+POS_A = _rs.uniform(0.1, 0.3, (3, 3))  # m
+POS_F = _rs.uniform(0.2, 1.0, (3, 3))
+POS_C = _rs.uniform(0, 2 * np.pi, (3, 3))
+
+
+def _sines(t, A, F, C, d=0):
+    """d-th derivative of sum_h A[c, h] sin(2 pi F[c, h] t + C[c, h]) per component c: (N, 3)."""
+    w = 2 * np.pi * F
+    ph = w[None] * t[:, None, None] + C[None] + d * np.pi / 2
+    return np.sum(A[None] * w[None] ** d * np.sin(ph), axis=2)
+
+
+def _hat(v):
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1), np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def truth_rot(t):
+    return Rotation.from_rotvec(_sines(t, ROT_A, ROT_F, ROT_C))
+
+
+def truth_rate(t):
+    """Body rate (rad/s): w = J_r(phi) phi', J_r = I - (1 - cos th)/th^2 K + (th - sin th)/th^3 K^2."""
+    phi, dphi = _sines(t, ROT_A, ROT_F, ROT_C), _sines(t, ROT_A, ROT_F, ROT_C, 1)
+    th = np.linalg.norm(phi, axis=1)[:, None, None]
+    K = _hat(phi)
+    J = np.eye(3) - (1 - np.cos(th)) / th**2 * K + (th - np.sin(th)) / th**3 * (K @ K)
+    return np.einsum("nij,nj->ni", J, dphi)
+
+
+def truth_pos(t, d=0):
+    return _sines(t, POS_A, POS_F, POS_C, d)
+
+
+def quat_wxyz(rot):
+    q = rot.as_quat()  # x, y, z, w
+    return np.concatenate([q[:, 3:], q[:, :3]], 1)
+
+
+def rot_of(q_wxyz):
+    return Rotation.from_quat(np.concatenate([q_wxyz[:, 1:], q_wxyz[:, :1]], 1))
+
+
+def make_rec(with_track: bool) -> dict:
+    t = np.arange(int(T_END * FS)) / FS
+    rot = truth_rot(t)
+    f = rot.inv().apply(truth_pos(t, 2) / G0 + np.array([0.0, 0.0, 1.0]))
+    rec = {"t": t, "acc": f, "gyr": truth_rate(t), "acc_unit": "g", "gyr_unit": "rad/s",
+           "pos_ref": truth_pos(t), "quat_ref": quat_wxyz(rot)}
+    if with_track:
+        tg = np.arange(-0.5, T_END + 0.5, 1 / 240.0)
+        rec.update(gt_t=tg, gt_pos=truth_pos(tg), gt_quat=quat_wxyz(truth_rot(tg)))
+    return rec
