@@ -1,9 +1,38 @@
 """Shared test configuration.
 
 ``JAXCAL_MARGIN_LOG=FILE`` turns on the near-threshold scan of ``tests/margins.py`` (``make margins``).
+
+Every ``diagnose`` report the suite produces is checked against the tool's promise
+(:func:`jaxcal.diagnose.report.promise_violations`: each named effect lowers the printed held-out
+rms, each sensor's final held-out rms is at most its baseline's, every named estimate is plausible).
+``jaxcal.diagnose.diagnose_recording`` is wrapped here, before any test module imports it, so a
+test that produces a report breaking the promise fails, whatever it asserts itself.
 """
 
+import functools
+
 import margins
+
+import jaxcal.diagnose as _diagnose
+from jaxcal.diagnose.report import promise_violations
+
+CHECKED_REPORTS = [0]
+
+
+def _checked(fn):
+    @functools.wraps(fn)
+    def run(*args, **kwargs):
+        rep = fn(*args, **kwargs)
+        bad = promise_violations(rep)
+        assert not bad, f"diagnose broke its promise: {bad}"
+        CHECKED_REPORTS[0] += 1
+        return rep
+
+    run.__wrapped_by_promise_check__ = True
+    return run
+
+
+_diagnose.diagnose_recording = _checked(_diagnose.diagnose_recording)
 
 
 def pytest_configure(config):

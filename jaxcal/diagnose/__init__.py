@@ -17,15 +17,15 @@ Pipeline (one sensor at a time, CONVENTIONS.md "Discrepancy vocabulary"):
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, Mapping
 
 import jax
 
-from jaxcal.diagnose.core import diagnose_sensor, measured_inputs, prepare
-from jaxcal.diagnose.select import SelectConfig, candidates
-from jaxcal.diagnose.report import build_report, figures as make_figures, report_markdown, write_report
+from jaxcal.diagnose.core import diagnose_banded, diagnose_prepared, prepare
+from jaxcal.diagnose.select import SelectConfig
+from jaxcal.diagnose.report import build_report_banded, figures_banded, report_markdown, write_report
 
-__all__ = ["diagnose_recording", "SelectConfig", "prepare", "report_markdown", "write_report"]
+__all__ = ["diagnose_recording", "diagnose_banded", "diagnose_prepared", "SelectConfig", "prepare", "report_markdown", "write_report"]
 
 
 def diagnose_recording(
@@ -34,8 +34,9 @@ def diagnose_recording(
     out_dir=None,
     key: jax.Array | None = None,
     config: SelectConfig = SelectConfig(),
-    pose_sigma: float = 0.02,
+    pose_sigma: float | None = None,
     with_figures: bool | None = None,
+    force: Mapping[str, tuple[str, ...]] | None = None,
 ) -> dict:
     """Diagnose a recording against the baseline sensor model; returns the ``report.json`` dict.
 
@@ -48,9 +49,12 @@ def diagnose_recording(
         out_dir: if given, ``report.json``, ``report.md`` and the figures are written there.
         key: unused (the diagnosis is deterministic); accepted for API symmetry.
         config: test level, power for detectable sizes, coarse time-offset range, ...
-        pose_sigma: smoothing (s) when the reference is derived from a pose.
+        pose_sigma: smoothing (s) when the reference is derived from a pose; None (default): each
+            sensor's from where the reference keeps its gain against it (:mod:`jaxcal.diagnose.band`).
         with_figures: build figures (default: only when ``out_dir`` is given); returned under the
             report's ``"_figures"`` key when built without ``out_dir``.
+        force: per sensor, effects estimated whatever the tests say (``{"acc": ("lever_arm",
+            "time_offset")}``; :func:`jaxcal.diagnose.align.align_recording` uses it).
 
     Raises:
         ValueError: bad input (no reference motion, unknown baseline, too few samples).
@@ -59,14 +63,10 @@ def diagnose_recording(
     if baseline not in ("diag", "affine"):
         raise ValueError(f"unknown baseline {baseline!r} (expected diag or affine)")
     t0 = time.perf_counter()
-    prep = prepare(rec, pose_sigma=pose_sigma)
-    if not prep.sensors:
-        raise ValueError("no sensor with a matching reference to diagnose")
-    n_tests = sum(len(candidates(baseline, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
-    results = {s: diagnose_sensor(baseline, sd, config, n_tests, meas=measured_inputs(prep, s)) for s, sd in prep.sensors.items()}
-    rep = build_report(prep, results, baseline, time.perf_counter() - t0)
+    preps, results = diagnose_banded(rec, baseline, config, force, pose_sigma)
+    rep = build_report_banded(preps, results, baseline, time.perf_counter() - t0)
     build_figs = (out_dir is not None) if with_figures is None else with_figures
-    figs = make_figures(prep, results) if build_figs else None
+    figs = figures_banded(preps, results) if build_figs else None
     if out_dir is not None:
         write_report(out_dir, rep, figs)
         if figs:

@@ -16,7 +16,10 @@ import numpy as np
 from scipy import stats
 
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.band import HALF_POWER as BH
+from jaxcal.diagnose.band import Band, choose_sigma
 from jaxcal.diagnose import kinematics as K
+from jaxcal.diagnose.locate import breakdown
 from jaxcal.diagnose.refit import RefitResult, refit
 from jaxcal.diagnose.select import (
     Decision,
@@ -67,6 +70,9 @@ class Prepared(NamedTuple):
     dt: float
     notes: list[str]
     from_pose: bool = False  # reference derived from a (noisy) pose: regressors carry its noise
+    band: Band | None = None  # the coherent band that chose the smoothing (pose_sigma=None)
+    pose_sigma: float | None = None  # the Gaussian width that set the decimation (s), pose-derived reference
+    sigma_by_sensor: dict | None = None  # each sensor's kernel width (s), pose-derived reference
 
 
 def _get(rec: Any, k: str):
@@ -95,18 +101,69 @@ def _spec(rec, sensor: str, y: np.ndarray, x: np.ndarray, rows: np.ndarray, note
     return sc, bi
 
 
+def _reference_ok(rec: Any, t: np.ndarray, notes: list[str]) -> np.ndarray:
+    """(N,) bool: where the recording's reference may be used. A reader's ``ref_valid`` marking
+    is honoured, and when the original pose track's times ``gt_t`` are kept, samples interpolated
+    across a missing track sample are dropped too (:func:`jaxcal.diagnose.kinematics.reference_gap_mask`)."""
+    ok = np.ones(len(t), bool)
+    rv = _get(rec, "ref_valid")
+    if rv is not None:
+        rv = np.asarray(rv).astype(bool).reshape(-1)
+        if rv.shape != ok.shape:
+            raise ValueError(f"'ref_valid' has {rv.size} values for {len(t)} samples")
+        ok &= rv
+    gt_t = _get(rec, "gt_t")
+    if gt_t is not None and np.ndim(gt_t) == 1 and len(gt_t) >= 2:
+        ok &= K.reference_gap_mask(t, gt_t)
+    if not ok.all():
+        notes.append(f"reference gaps: {int((~ok).sum())} of {len(t)} samples have no trustworthy reference "
+                     "(the reader's ref_valid, and interpolation across a missing pose sample); they and the kernel around them are dropped")
+    return ok
+
+
 def split_blocks(n: int, n_blocks: int = 8) -> np.ndarray:
     """Block id (N,) of ``n_blocks`` contiguous equal time blocks (cross-validation folds)."""
     return np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
 
 
-def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, n_blocks: int = 8) -> Prepared:
+def _choose_band(t, dt, pos, quat, raw, get, rec) -> Band:
+    """The smoothing of a pose-derived reference from the coherence of sensor and reference
+    (:func:`jaxcal.diagnose.band.choose_sigma`), measured against a reference derived with a
+    kernel of about one sample (nearly unsmoothed) in the spec's physical units."""
+    ref0 = K.reference_from_pose(t, pos, quat, max(dt, 1e-4))
+    valid = ref0["valid"]
+    pairs = {}
+    for s, key in (("gyr", "gyr_ref"), ("acc", "acc_ref")):
+        if raw[s] is None:
+            continue
+        y = raw[s]
+        if str(get(rec, f"{s}_unit") or "LSB") == "LSB":
+            sc, bi = _spec(rec, s, y, ref0[key], valid, [])
+            y = (y - bi) / sc
+        pairs[s] = (y, ref0[key])
+    lag = 0
+    if "gyr" in pairs:  # a clock offset decorrelates Welch windows: align the streams first (|rate| is frame-free)
+        y, x = pairs["gyr"]
+        lag = coarse_lag(np.linalg.norm(y, axis=1)[:, None], np.linalg.norm(x, axis=1)[:, None], valid, int(min(1.0 / dt, len(t) // 10)))
+    if lag:
+        sh = lambda a: np.roll(a, lag, axis=0)  # noqa: E731 - x(t - lag), as the sensor reads it
+        pairs = {s: (y, sh(x)) for s, (y, x) in pairs.items()}
+        valid = valid & sh(valid)
+        valid[: abs(lag)] = valid[-abs(lag) :] = False
+    return choose_sigma(pairs, valid, dt, lag_s=lag * dt)
+
+
+def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float = 0.0, n_blocks: int = 8,
+            band: Band | None = None) -> Prepared:
     """Build per-sensor :class:`SensorData` from a recording (see module docstring).
 
     With ``gyr_ref``/``acc_ref`` given, angular acceleration is the five-point derivative of
     ``gyr_ref`` (or a Gaussian-smoothed one of ``ref_sigma_samples`` samples if > 0). With only a pose, the reference is derived with a Gaussian
     of ``pose_sigma`` s (:func:`jaxcal.diagnose.kinematics.reference_from_pose`), the sensor outputs
-    are smoothed by the same kernel and everything is decimated by ``round(pose_sigma / dt)``.
+    are smoothed by the same kernel and everything is decimated by ``round(pose_sigma / dt)``;
+    ``pose_sigma=None`` chooses the width from the coherence of sensor and reference
+    (:mod:`jaxcal.diagnose.band`: the band where the reference is trustworthy); ``band``: an already
+    chosen :class:`~jaxcal.diagnose.band.Band` to report beside a fixed ``pose_sigma``.
     """
     notes: list[str] = []
     t = np.asarray(_get(rec, "t"), np.float64)
@@ -119,18 +176,34 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
     acc_ref, gyr_ref = _get(rec, "acc_ref"), _get(rec, "gyr_ref")
     pos, quat = _get(rec, "pos_ref"), _get(rec, "quat_ref")
     raw = {"acc": None if acc is None else np.asarray(acc, np.float64), "gyr": None if gyr is None else np.asarray(gyr, np.float64)}
+    ref_ok = _reference_ok(rec, t, notes)
+    if pos is not None and quat is not None:
+        pos = np.where(ref_ok[:, None], np.asarray(pos, np.float64), np.nan)
+        quat = np.where(ref_ok[:, None], np.asarray(quat, np.float64), np.nan)
     decim = 1
+    per_sensor: dict = {}  # pose-derived reference per sensor (its own kernel width): (f, w, wdot)
     if gyr_ref is None and pos is not None and quat is not None:
-        ref = K.reference_from_pose(t, pos, quat, pose_sigma)
-        f, w, wdot, valid = ref["acc_ref"], ref["gyr_ref"], ref["wdot_ref"], ref["valid"]
+        if pose_sigma is None:
+            band = _choose_band(t, dt, pos, quat, raw, _get, rec)
+            pose_sigma = band.sigma_s
+            sig = dict(band.sigma_by_sensor)
+        else:
+            sig = {s: float(pose_sigma) for s in raw if raw[s] is not None}
+        valid = np.ones(len(t), bool)
+        for s in sig:
+            ref = K.reference_from_pose(t, pos, quat, sig[s])
+            per_sensor[s] = (ref["acc_ref"], ref["gyr_ref"], ref["wdot_ref"])
+            valid &= ref["valid"]
+            raw[s] = K._conv(raw[s], K.gaussian_kernels(sig[s], dt)[0])
+        f, w, wdot = per_sensor["gyr" if "gyr" in per_sensor else "acc"]
         h0 = K.gaussian_kernels(pose_sigma, dt)[0]
-        for s in ("acc", "gyr"):
-            if raw[s] is not None:
-                raw[s] = K._conv(raw[s], h0)
         if temp is not None:
             temp = K._conv(np.asarray(temp, np.float64)[:, None], h0)[:, 0]
         decim = max(1, int(round(pose_sigma / dt)))
-        notes.append(f"reference derived from the pose (Gaussian sigma {pose_sigma * 1e3:.0f} ms); outputs smoothed alike, decimated by {decim}")
+        notes.append("reference derived from the pose (Gaussian " + ", ".join(f"{s} sigma {v * 1e3:.0f} ms, band 0-{BH / v:.1f} Hz" for s, v in sig.items())
+                     + f"); outputs smoothed alike, decimated by {decim}")
+        if band is not None and pose_sigma == band.sigma_s:
+            notes.append("band: " + band.reason)
         smoothed = True
     else:
         if gyr_ref is None and acc_ref is None:
@@ -143,7 +216,7 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
                 notes.append("no acc_ref: accelerometer not diagnosed; g-sensitivity uses the measured acc")
             f = np.zeros((len(t), 3))
         wdot = K.derivative5(w, dt) if ref_sigma_samples <= 0 else K.derivative(w, ref_sigma_samples * dt, dt)
-        valid = np.isfinite(w).all(1) & np.isfinite(f).all(1)
+        valid = np.isfinite(w).all(1) & np.isfinite(f).all(1) & ref_ok
     sl = slice(None, None, decim)
     t, f, w, wdot, valid = t[sl], f[sl], w[sl], wdot[sl], valid[sl]
     temp = None if temp is None else np.asarray(temp, np.float64)[sl]
@@ -165,6 +238,7 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
         return np.stack([np.interp(idx, idx[valid], a[valid, c]) for c in range(a.shape[1])], 1)
 
     f, w, wdot = bridge(f), bridge(w), bridge(wdot)
+    per_sensor = {s: tuple(bridge(a[sl]) for a in v) for s, v in per_sensor.items()}
     out: dict[str, SensorData] = {}
     for s in ("acc", "gyr"):
         if raw[s] is None:
@@ -173,6 +247,8 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
             continue
         if s == "gyr" and gyr_ref is None and pos is None:
             continue
+        if s in per_sensor:  # pose-derived, with this sensor's own kernel width
+            f, w, wdot = per_sensor[s]
         x = f if s == "acc" else w
         if s == "gyr" and acc_ref is None and raw["acc"] is not None and pos is None:
             sca, bia = _spec(rec, "acc", raw["acc"], f, valid, notes)
@@ -182,7 +258,8 @@ def prepare(rec: Any, pose_sigma: float = 0.02, ref_sigma_samples: float = 0.0, 
         is_counts = (not smoothed) and str(_get(rec, f"{s}_unit") or "LSB") == "LSB"
         inp = E.Inputs(f, w, wdot, tc, dT, np.asarray(dt))
         out[s] = SensorData(s, y, raw[s] if is_counts else None, sc, bi, inp, valid.copy(), block, temp is not None)
-    return Prepared(out, t, temp, dt, notes, smoothed)
+    return Prepared(out, t, temp, dt, notes, smoothed, band, pose_sigma if smoothed else None,
+                    {s: float(v) for s, v in (sig.items() if smoothed else ())})
 
 
 def measured_inputs(prep: Prepared, s: str) -> E.Inputs | None:
@@ -215,6 +292,34 @@ class SensorResult(NamedTuple):
     ar_orders: list[int]
     ar_sigma: list[float]
     ar_theta: list[float]
+    frame_fit: RefitResult | None = None  # the refit whose covariance gives the affine frame split
+
+
+UNIT_OF = {"acc": "g", "gyr": "rad/s"}
+FORCED = "estimated on request (jaxcal align), not a test"
+
+
+def _demote(d: Decision | None, why: str, name: str = "") -> Decision:
+    """A selected decision turned into a rejection with the reason ``why``."""
+    if d is None:
+        return Decision(name, float("nan"), 0, float("nan"), float("nan"), False, why)
+    return d._replace(selected=False, reason=why)
+
+
+def _where(resid: np.ndarray, rows: np.ndarray, sd: SensorData, dt: float) -> str:
+    """Where a baseline residual lives, in words (axis, regime, frequency band; :func:`breakdown`)."""
+    tc = np.asarray(sd.inp.tc)
+    b = breakdown(resid, rows, tc - tc[0], np.asarray(sd.inp.w), np.asarray(sd.inp.wdot), None, dt)
+    w = b["where"]
+    ax = int(np.argmax(b["axis"]))
+    txt = f"mostly on axis {'xyz'[ax]} (rms {_fmt3(b['axis'])})"
+    if w["breakdown"] is not None:
+        txt += f", in the {w['breakdown']} bin {w['bin']} ({w['rms_ratio']:.2f}x the overall rms)"
+    return txt + f", and in the {w['band_hz'][0]:g}-{w['band_hz'][1]:g} Hz band ({w['band_excess']:.2f}x its white share)"
+
+
+def _fmt3(v) -> str:
+    return "[" + ", ".join(f"{float(x):.3g}" for x in v) + "]"
 
 
 def _theta_with_tau(sensor: str, tau: float) -> np.ndarray:
@@ -263,8 +368,19 @@ def _refine_tau(kind: str, sd: SensorData, tau_c: float, ars, rows: np.ndarray, 
 
 
 def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, _relin: tuple | None = None,
-                    meas: E.Inputs | None = None) -> SensorResult:
+                    meas: E.Inputs | None = None, force: tuple[str, ...] = (), lag_hint: int | None = None,
+                    tau_fixed: float | None = None) -> SensorResult:
     """Locate-name-refit for one sensor; ``n_tests`` is the Bonferroni count of the recording.
+
+    ``force``: effects estimated whatever the tests say (``jaxcal align`` estimates the time offset
+    and lever arm of every rig); they are reported as estimates, not as discoveries. ``lag_hint``:
+    the coarse lag (samples) another sensor on the same clock found; used where it fits better.
+    ``tau_fixed``: hold this sensor's time offset at this value (s) instead of estimating it.
+
+    The promise of the report, enforced here: every named effect lowers the physical held-out rms
+    that the report prints (an effect that does not is demoted to ``rejected`` with a warning that
+    says where the residual lives), and no named estimate lies outside its plausible range
+    (:data:`jaxcal.diagnose.effects.PLAUSIBLE_RANGE`; outside, it is a misspecification warning).
 
     When a time offset is named, the selection is repeated once with the model relinearised at the
     refit offset (``_relin = (tau, decision)``, internal): linearised at 0, an offset of a sizeable
@@ -275,12 +391,23 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     dt = float(sd.inp.dt)
     warnings: list[str] = []
     cands = candidates(kind, sd)
+    if tau_fixed is not None:  # the clock offset is known (the other sensor's): held, not estimated
+        cands = [c for c in cands if c != "time_offset"]
+        force = tuple(c for c in force if c != "time_offset")
+        _relin = None
     pre: list[str] = []
     decisions: dict = {}
     # coarse time offset: cross-correlation over +-max_lag_s, then a likelihood-ratio check
     x_in = np.asarray(sd.inp.f if s == "acc" else sd.inp.w)
     max_lag = int(min(cfg.max_lag_s / dt, len(sd.y) // 10))
-    lag = coarse_lag(sd.y, x_in, sd.valid, max_lag)
+    lag = 0 if tau_fixed is not None else coarse_lag(sd.y, x_in, sd.valid, max_lag)
+    if tau_fixed is None and lag_hint is not None and lag_hint != lag and abs(lag_hint) <= max_lag:
+        # the other sensor runs on the same clock: take its lag where it explains this sensor better
+        # (an accelerometer's cross-correlation is dominated by slow gravity and can miss a clock offset)
+        e = _edge_rows(sd.valid, max(abs(lag), abs(lag_hint)) * dt, dt)
+        rss_of = lambda l: float(np.sum(_baseline_resid(kind, sd, _theta_with_tau(s, l * dt), e)[0][e] ** 2))  # noqa: E731
+        if rss_of(lag_hint) < rss_of(lag):
+            lag = int(lag_hint)
     tau_lin = 0.0
     coarse = None
     if _relin is not None:
@@ -299,6 +426,10 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             tau_lin = _refine_tau(kind, sd, tau_c, ars, rows, dt)
             pre.append("time_offset")
             warnings.append(f"{s}: coarse search found a large time offset of {tau_lin * 1e3:.1f} ms ({lag} samples, refined to a fraction of a sample); refined below")
+    if tau_fixed is not None:
+        tau_lin = float(tau_fixed)
+        warnings.append(f"{s}: time offset held at {tau_lin * 1e3:.3f} ms, the other sensor's (one IMU clock)")
+    pre += [c for c in force if c not in pre and c in cands]
     fit_rows = _edge_rows(sd.valid, tau_lin, dt)
     theta_lin = _theta_with_tau(s, tau_lin)
     resid, beta = _baseline_resid(kind, sd, theta_lin, fit_rows)
@@ -350,6 +481,10 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         prev = selected
     if coarse is not None:
         decisions["time_offset"] = Decision("time_offset", coarse[0], 1, coarse[1], float("nan"), True, "selected (coarse search)")
+    for c in force:
+        if c in pre and c not in decisions and c in cands:
+            decisions[c] = Decision(c, float("nan"), len(group_columns(kind, s, c)), float("nan"), float("nan"), True,
+                                    FORCED)
     if _relin is not None:
         decisions["time_offset"] = _relin[1]._replace(reason=_relin[1].reason + f"; model relinearised at the refit offset {tau_lin * 1e3:.2f} ms and the other effects reselected")
     # detectability and confounding, relative to the baseline
@@ -411,31 +546,124 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         if c in decisions:
             decisions[c] = decisions[c]._replace(reason=decisions[c].reason + f"; confounded with {', '.join(confounded[c])}")
     order = [c for c in selected]
-    path = heldout_rms_path(S, kind, s, order)
-    path_ols = heldout_rms_path(S, kind, s, order, fit="ols")
-    if tau_lin != 0.0:
-        # baseline held-out rms at zero time offset (the path starts at the linearisation point)
-        # linearised at the zero-offset baseline fit: a random-walk noise model annihilates the bias
-        # columns, so starting from unit scale / zero bias would leave the whole bias in the residual
-        _, beta_z = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
-        xb, zb = linearize_baseline(kind, sd, beta_z, np.zeros(E.N_THETA[s]))
-        Sb = build_system(xb, zb, ars, fit_rows, sd.block)
-        path[0] = heldout_rms_path(Sb, kind, s, [])[0]
-        path_ols[0] = heldout_rms_path(Sb, kind, s, [], fit="ols")[0]
-    theta0 = full[nb:] + theta_lin
-    beta0 = beta + full[:nb]
+    fixed = set(pre) | set(force)  # coarse time offset and forced effects: estimated, not gated
     r_base, b_base = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
     zt = np.zeros(E.N_THETA[s])
     base_all = RefitResult(b_base, zt, np.zeros(nb), zt, float("nan"), r_base)
-    if order:
-        final_all = refit(kind, s, beta0, theta0, order, sd.inp, sd.y, fit_rows, ars, sd.block)
-    else:
-        final_all = base_all
+    where_text = _where(r_base, fit_rows, sd, dt)
+    for name, d in decisions.items():
+        if not d.selected and d.reason.startswith("whitened test passes"):
+            warnings.append(f"{s} {name}: significant in the whitened test (log10 p {d.log10_p:.1f}) but the physical held-out rms "
+                            f"does not fall (change {d.heldout_rms_change:+.3g} {UNIT_OF[s]}), so it is not named; the residual lives {where_text}")
+    while True:
+        path = heldout_rms_path(S, kind, s, order)
+        path_ols = heldout_rms_path(S, kind, s, order, fit="ols")
+        if tau_lin != 0.0:
+            # baseline held-out rms at zero time offset (the path starts at the linearisation point)
+            # linearised at the zero-offset baseline fit: a random-walk noise model annihilates the bias
+            # columns, so starting from unit scale / zero bias would leave the whole bias in the residual
+            _, beta_z = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
+            xb, zb = linearize_baseline(kind, sd, beta_z, np.zeros(E.N_THETA[s]))
+            Sb = build_system(xb, zb, ars, fit_rows, sd.block)
+            path[0] = heldout_rms_path(Sb, kind, s, [])[0]
+            path_ols[0] = heldout_rms_path(Sb, kind, s, [], fit="ols")[0]
+        # the promise: every named effect lowers the printed held-out rms, step by step
+        worse = [k for k in range(len(order)) if order[k] not in fixed and not path[k + 1] < path[k]]
+        if worse:
+            k = worse[0]
+            name = order.pop(k)
+            decisions[name] = _demote(decisions[name], f"held-out rms does not fall when it is added ({path[k]:.5g} -> {path[k + 1]:.5g})")
+            warnings.append(f"{s} {name}: significant in the whitened test but it does not lower the physical held-out rms "
+                            f"({path[k]:.5g} -> {path[k + 1]:.5g} {UNIT_OF[s]}), so it is not named; the residual lives {where_text}")
+            continue
+        theta0 = full[nb:] + theta_lin
+        beta0 = beta + full[:nb]
+        final_all = refit(kind, s, beta0, theta0, order, sd.inp, sd.y, fit_rows, ars, sd.block) if order else base_all
+        bad = [(E.implausible(s, n, final_all.theta), n) for n in order if n not in force]
+        bad = [b for b in bad if b[0] > 1.0]
+        if bad:
+            ratio, name = max(bad)
+            order.remove(name)
+            lim = E.PLAUSIBLE_RANGE[(name, s)]
+            est = E.params_from_theta(s, name, final_all.theta)
+            decisions[name] = _demote(decisions.get(name), f"implausible estimate {est} (beyond |{lim:g}| {E.UNITS[(name, s)]})", name)
+            warnings.append(f"{s} {name}: misspecification - its estimate {est} lies {ratio:.3g}x beyond the plausible "
+                            f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
+                            f"recording there; the residual lives {where_text}")
+            continue
+        break
     if _relin is None and "time_offset" in order:
         tau_hat = float(final_all.theta[E.slot(s, "time_offset").start])
         if abs(tau_hat - tau_lin) > 0.02 * dt:
             d0 = decisions["time_offset"]
-            return diagnose_sensor(kind, sd, cfg, n_tests, (tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0)), meas)
+            return diagnose_sensor(kind, sd, cfg, n_tests, (tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0)), meas, force)
+    for c in force:  # estimates on request stay marked as such, whatever relinearisation added
+        d = decisions.get(c)
+        if d is not None and d.selected and not d.reason.startswith(FORCED):
+            decisions[c] = d._replace(reason=f"{FORCED}; {d.reason}")
+    frame_fit = final_all if order else None
+    if kind == "affine" and not order:  # baseline standard errors for the rotation's interval
+        frame_fit = refit(kind, s, b_base, zt, [], sd.inp, sd.y, fit_rows, ars, sd.block)
     return SensorResult(
-        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, path_ols, sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars],
+        s, order, {k: v._asdict() for k, v in decisions.items()}, mds, warnings, base_all, final_all, fit_rows, path, path_ols,
+        sat_info, tau_lin, [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars], frame_fit,
     )
+
+
+def diagnose_prepared(prep: Prepared, kind: str, cfg: SelectConfig = SelectConfig(),
+                      force: Mapping[str, tuple[str, ...]] | None = None, one_clock: bool = False) -> dict[str, SensorResult]:
+    """:func:`diagnose_sensor` for every sensor of a :class:`Prepared` recording (one Bonferroni
+    family over all of them); ``force`` per sensor as in :func:`diagnose_sensor`. The gyroscope
+    runs first and its coarse clock offset guides the accelerometer's search; with ``one_clock``
+    (``jaxcal align``: both sensors on the IMU's clock) the accelerometer's time offset is held at
+    the gyroscope's estimate, whose regressor (the rate's derivative) is the sharper."""
+    n_tests = sum(len(candidates(kind, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
+    force = dict(force or {})
+    out: dict[str, SensorResult] = {}
+    hint = None
+    for s in sorted(prep.sensors, key=lambda k: k != "gyr"):  # the gyroscope first: its clock offset is the sharper
+        tau_fixed = None
+        if one_clock and s == "acc" and "gyr" in out and "time_offset" in out["gyr"].selected:
+            tau_fixed = float(out["gyr"].final_all.theta[E.slot("gyr", "time_offset").start])
+        out[s] = diagnose_sensor(kind, prep.sensors[s], cfg, n_tests, meas=measured_inputs(prep, s), force=tuple(force.get(s, ())),
+                                 lag_hint=hint, tau_fixed=tau_fixed)
+        if s == "gyr" and out[s].tau_lin != 0.0:
+            hint = int(round(out[s].tau_lin / prep.dt))
+    return {s: out[s] for s in prep.sensors}
+
+
+def diagnose_banded(rec: Any, kind: str, cfg: SelectConfig = SelectConfig(), force: Mapping[str, tuple[str, ...]] | None = None,
+                    pose_sigma: float | None = None, one_clock: bool = False) -> tuple[dict[str, Prepared], dict[str, SensorResult]]:
+    """Prepare and diagnose a recording, each sensor in its own trusted band.
+
+    With a pose-derived reference and ``pose_sigma=None``, :mod:`jaxcal.diagnose.band` may give
+    the accelerometer a wider kernel than the gyroscope (the position's second derivative is
+    noisier than the rotation's first); each sensor is then prepared with its own kernel and
+    decimation and diagnosed there, the gyroscope first (its clock offset guides the
+    accelerometer's search, or with ``one_clock`` fixes it). Returns ``({sensor: Prepared},
+    {sensor: SensorResult})``; one shared :class:`Prepared` when a single kernel serves both.
+    """
+    prep = prepare(rec, pose_sigma=pose_sigma)
+    if not prep.sensors:
+        raise ValueError("no sensor with a matching reference to diagnose")
+    sig = prep.sigma_by_sensor or {}
+    if prep.band is None or len(set(sig.values())) <= 1:
+        res = diagnose_prepared(prep, kind, cfg, force, one_clock)
+        return {s: prep for s in res}, res
+    force = dict(force or {})
+    n_tests = sum(len(candidates(kind, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
+    preps: dict[str, Prepared] = {}
+    out: dict[str, SensorResult] = {}
+    for s in sorted(prep.sensors, key=lambda k: k != "gyr"):
+        ps = prep if sig[s] == prep.pose_sigma else prepare(rec, pose_sigma=sig[s], band=prep.band)
+        ps = ps._replace(band=prep.band, sigma_by_sensor=sig)
+        hint, tau_fixed = None, None
+        if s == "acc" and "gyr" in out:
+            if out["gyr"].tau_lin != 0.0:
+                hint = int(round(out["gyr"].tau_lin / ps.dt))
+            if one_clock and "time_offset" in out["gyr"].selected:
+                tau_fixed = float(out["gyr"].final_all.theta[E.slot("gyr", "time_offset").start])
+        preps[s] = ps
+        out[s] = diagnose_sensor(kind, ps.sensors[s], cfg, n_tests, meas=measured_inputs(ps, s), force=tuple(force.get(s, ())),
+                                 lag_hint=hint, tau_fixed=tau_fixed)
+    return {s: preps[s] for s in prep.sensors}, {s: out[s] for s in prep.sensors}

@@ -98,6 +98,41 @@ PLAUSIBLE = {
     ("bias_drift", "gyr"): 1e-5,
 }
 
+# The plausible range of each effect on a real MEMS IMU and rig: the largest |component| an
+# estimate may have and still be a name (CONVENTIONS.md "plausible range"). An estimate outside
+# it is not a physical effect of that size but a model that does not fit (a frame, clock or
+# reference problem, or a noise model the data contradict); ``diagnose`` then reports a
+# misspecification warning instead of naming it. Misalignment includes the frame rotation between
+# a mocap body and the sensor that a ``diag`` baseline leaves to it (10 deg = 0.17 rad).
+PLAUSIBLE_RANGE = {
+    ("lever_arm", "acc"): 1.0,  # m
+    ("g_sensitivity", "gyr"): 0.02,  # (rad/s)/g
+    ("misalignment", "acc"): 0.2,  # rad
+    ("misalignment", "gyr"): 0.2,  # rad
+    ("scale_nonlinearity", "acc"): 0.05,  # 1/g
+    ("scale_nonlinearity", "gyr"): 0.05,  # 1/(rad/s)
+    ("time_offset", "acc"): 2.0,  # s
+    ("time_offset", "gyr"): 2.0,  # s
+    ("temperature_bias", "acc"): 0.01,  # g/degC
+    ("temperature_bias", "gyr"): 0.01,  # (rad/s)/degC
+    ("temperature_scale", "acc"): 0.01,  # 1/degC
+    ("temperature_scale", "gyr"): 0.01,  # 1/degC
+    ("bias_drift", "acc"): 1e-3,  # g/s
+    ("bias_drift", "gyr"): 1e-3,  # (rad/s)/s
+}
+
+
+def implausible(sensor: str, name: str, theta) -> float:
+    """Largest |component| of effect ``name`` in ``theta`` over its :data:`PLAUSIBLE_RANGE`
+    (> 1: outside the range; 0 for effects without a range)."""
+    lim = PLAUSIBLE_RANGE.get((name, sensor))
+    if lim is None:
+        return 0.0
+    sl = slot(sensor, name)
+    v = np.asarray(theta, np.float64)[sl.start : sl.start + sl.size]
+    return float(np.max(np.abs(v)) / lim)
+
+
 SATURATION = "saturation"
 EFFECT_NAMES = (
     "lever_arm",

@@ -58,6 +58,8 @@ class RefitResult(NamedTuple):
     se_model_theta: np.ndarray | None = None
     se_block_theta: np.ndarray | None = None
     n_steps: int = 0
+    cov: np.ndarray | None = None  # (B+P, B+P) over [beta, theta]: correlations of the sandwich (else model), scales of se
+    n_downweighted: int = 0  # whitened rows given a Huber weight below 1
 
 
 def _filters(ars: list[ARModel], n: int) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
@@ -145,11 +147,15 @@ def block_sandwich_cov(jac: np.ndarray, rr: np.ndarray, hess: np.ndarray, row_bl
 
 
 def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs, y: np.ndarray, rows: np.ndarray,
-          ars: list[ARModel], block: np.ndarray | None = None, max_steps: int = 128) -> RefitResult:
+          ars: list[ARModel], block: np.ndarray | None = None, max_steps: int = 128, huber: float | None = 3.0) -> RefitResult:
     """Fit baseline + effects ``names`` jointly on ``rows`` (bool (N,)) from ``(beta0, theta0)``.
 
     ``block`` (N,) int: time-block ids for the block-sandwich standard error (omitted: model-based
-    standard error only).
+    standard error only). ``huber``: robust down-weighting of outliers (mocap glitches, shocks):
+    after the least-squares solve, whitened rows whose residual exceeds ``huber`` robust standard
+    deviations (1.4826 x median absolute residual) get the Huber weight ``huber sd / |r|`` and the
+    fit is solved once more (the block sandwich keeps the standard errors honest under the
+    weights); None: plain least squares. On Gaussian noise about 0.3 % of rows are touched.
     """
     mask = E.effect_mask(sensor, names)
     taps, sig, th = _filters(ars, len(y))
@@ -158,11 +164,21 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     with jax.enable_x64(True):
         jinp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in inp])
         phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
-        phi, jac, hess, rr, n_data, n_steps = _refit(
-            kind, sensor, phi0, jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64),
-            jnp.asarray(fill_index(rows)), jnp.asarray(row_w), jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(a) for a in th),
-            max_steps=max_steps,
-        )
+        args = (jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64), jnp.asarray(fill_index(rows)))
+        filt = (jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(a) for a in th))
+        phi, jac, hess, rr, n_data, n_steps = _refit(kind, sensor, phi0, *args, jnp.asarray(row_w), *filt, max_steps=max_steps)
+        n_down = 0
+        if huber is not None:
+            # one iteratively-reweighted pass: whitened rows beyond huber x robust sd get Huber weights
+            u = np.asarray(rr)[: 3 * len(y)].reshape(len(y), 3)
+            on = row_w > 0
+            sd = 1.4826 * float(np.median(np.abs(u[on]))) if on.any() else 0.0
+            if sd > 0:
+                w = np.minimum(1.0, huber * sd / np.maximum(np.abs(u), 1e-300))
+                n_down = int(np.sum(on & (w < 1.0)))
+                if n_down:
+                    phi, jac, hess, rr, n_data, n_steps = _refit(kind, sensor, phi, *args, jnp.asarray(row_w * np.sqrt(w)), *filt,
+                                                                 max_steps=max_steps)
         phi, jac, hess, rr = (np.asarray(a) for a in (phi, jac, hess, rr))
         beta, theta = phi[:nb], phi[nb:] * mask
         resid = np.asarray(y - E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(theta), jinp))
@@ -182,4 +198,11 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
         se_b = np.zeros(len(phi))
         se_b[active] = np.sqrt(np.clip(np.diag(cb), 0.0, None))
         se = np.maximum(se_m, se_b)
-    return RefitResult(beta, theta, se[:nb], se[nb:], s2, resid, se_m[nb:], None if se_b is None else se_b[nb:], int(n_steps))
+    corr_src = cov if se_b is None else cb
+    d = np.sqrt(np.clip(np.diag(corr_src), 0.0, None))
+    inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 1e-150)
+    corr = np.clip(corr_src * inv[:, None] * inv[None, :], -1.0, 1.0)
+    sa = se[active]
+    cov_full = np.zeros((len(phi), len(phi)))
+    cov_full[np.ix_(active, active)] = corr * sa[:, None] * sa[None, :]
+    return RefitResult(beta, theta, se[:nb], se[nb:], s2, resid, se_m[nb:], None if se_b is None else se_b[nb:], int(n_steps), cov_full, n_down)

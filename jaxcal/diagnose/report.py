@@ -10,7 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.core import Prepared, SensorResult
+from jaxcal.diagnose.core import FORCED, Prepared, SensorResult
+from jaxcal.diagnose.band import HALF_POWER
+from jaxcal.diagnose.frames import lever_arm_frames, rotation_split
 from jaxcal.diagnose.locate import allan_deviation, breakdown, whiteness
 
 UNIT = {"acc": "g", "gyr": "rad/s"}
@@ -32,6 +34,15 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
     rep["dt_s"] = prep.dt
     rep["notes"] = list(prep.notes)
     rep["sensors"] = {}
+    if prep.pose_sigma is not None:
+        b = prep.band
+        rep["reference_band"] = {"sigma_s": prep.pose_sigma, "band_hz": [0.0, HALF_POWER / prep.pose_sigma],
+                                 "sigma_by_sensor_s": prep.sigma_by_sensor,
+                                 "band_by_sensor_hz": {k: [0.0, HALF_POWER / v] for k, v in (prep.sigma_by_sensor or {}).items()},
+                                 "chosen_by": "coherence" if b is not None else "fixed pose_sigma",
+                                 "reason": b.reason if b is not None else "pose_sigma given by the caller",
+                                 "coherent_edge_hz": None if b is None else b.edge_hz,
+                                 "coherent_edge_per_axis_hz": None if b is None else b.axis_edge_hz}
     T0 = float(np.mean(prep.temp)) if prep.temp is not None else None
     for s, r in results.items():
         sd = prep.sensors[s]
@@ -53,7 +64,8 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
                 "name": name, "sensor": s, "params": params, "stderr": se, "unit": E.UNITS[(name, s)],
                 "heldout_rms_before": r.heldout_path[k], "heldout_rms_after": r.heldout_path[k + 1],
                 "stat": d["stat"], "dof": d["dof"], "log10_p": d["log10_p"], "mds": r.mds.get(name),
-                "note": d["reason"],
+                "note": d["reason"], "plausible_max_abs": E.PLAUSIBLE_RANGE.get((name, s)),
+                "forced": d["reason"].startswith(FORCED),
             })
         if r.saturation is not None and r.saturation["selected"]:
             rep["effects"].append({
@@ -65,7 +77,8 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
         for name, d in r.decisions.items():
             if not d["selected"]:
                 rep["rejected"].append({"name": name, "sensor": s, "stat": d["stat"], "dof": d["dof"], "log10_p": d["log10_p"],
-                                        "heldout_gain": d["heldout_gain"], "reason": d["reason"], "mds": r.mds.get(name)})
+                                        "heldout_gain": d["heldout_gain"], "heldout_rms_change": d.get("heldout_rms_change"),
+                                        "reason": d["reason"], "mds": r.mds.get(name)})
         if r.saturation is not None and not r.saturation["selected"]:
             rep["rejected"].append({"name": "saturation", "sensor": s, "stat": r.saturation["stat"], "dof": 1,
                                     "log10_p": r.saturation["log10_p"], "reason": "not significant"})
@@ -74,15 +87,109 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
         rep["sensors"][s] = {
             "noise": {"ar_order": r.ar_orders, "ima_theta": r.ar_theta, "innovation_sd": r.ar_sigma, "whitened_s2_final": r.final_all.s2},
             "baseline_params": np.asarray(r.base_all.beta).tolist(),
+            "estimator": {"fit": "noise-model (AR + random walk) least squares, Huber-reweighted once (3 robust sd)",
+                          "downweighted_rows": int(r.final_all.n_downweighted),
+                          "stderr": "larger of model-based and 8-block sandwich"},
             "mds": r.mds,
             "mds_units": {n: E.UNITS.get((n, s)) for n in r.mds},
             "locate": breakdown(r.base_all.resid, rows, prep.t, np.asarray(inp.w), np.asarray(inp.wdot), prep.temp, prep.dt),
             "whiteness_before": whiteness(r.base_all.resid, rows, prep.dt),
             "whiteness_after": whiteness(r.final_all.resid, rows, prep.dt),
         }
-    rep["effects"].sort(key=lambda e: e["log10_p"])
+    if kind == "affine":
+        rep["frames"] = frames_report(results)
+    rep["plausible_range"] = {f"{s} {n}": {"max_abs": v, "unit": E.UNITS[(n, s)]} for (n, s), v in E.PLAUSIBLE_RANGE.items() if s in results}
+    rep["effects"].sort(key=lambda e: (np.inf if e.get("forced") else e["log10_p"]) if np.isfinite(e["log10_p"]) else np.inf)
     rep["runtime_s"] = runtime_s
     return rep
+
+
+def build_report_banded(preps: dict[str, Prepared], results: dict[str, SensorResult], kind: str, runtime_s: float) -> dict:
+    """:func:`build_report` when each sensor was prepared in its own band
+    (:func:`jaxcal.diagnose.core.diagnose_banded`): one report per sensor, merged; the frames
+    (rotation, lever arm) from all sensors together. ``n_samples``/``dt_s`` are the gyroscope's
+    (each sensor's own under ``sensors``)."""
+    ids = {id(p) for p in preps.values()}
+    if len(ids) == 1:
+        return build_report(next(iter(preps.values())), results, kind, runtime_s)
+    order = sorted(results, key=lambda k: k != "gyr")
+    rep = None
+    for s in order:
+        r = build_report(preps[s], {s: results[s]}, kind, runtime_s)
+        r["sensors"][s]["n_samples"], r["sensors"][s]["dt_s"] = r["n_samples"], r["dt_s"]
+        if rep is None:
+            rep = r
+            continue
+        for k in ("baseline", "final", "sensors"):
+            rep[k].update(r[k])
+        for k in ("effects", "rejected", "warnings"):
+            rep[k] += r[k]
+        rep["notes"] += [n for n in r["notes"] if n not in rep["notes"]]
+    if kind == "affine":
+        rep["frames"] = frames_report(results)
+    rep["plausible_range"] = {f"{s} {n}": {"max_abs": v, "unit": E.UNITS[(n, s)]} for (n, s), v in E.PLAUSIBLE_RANGE.items() if s in results}
+    rep["effects"].sort(key=lambda e: (np.inf if e.get("forced") else e["log10_p"]) if np.isfinite(e["log10_p"]) else np.inf)
+    return rep
+
+
+def figures_banded(preps: dict[str, Prepared], results: dict[str, SensorResult]) -> dict:
+    """:func:`figures` per sensor, each with its own :class:`Prepared`."""
+    out = {}
+    for s in results:
+        out.update(figures(preps[s], {s: results[s]}))
+    return out
+
+
+def frames_report(results: dict[str, SensorResult]) -> dict:
+    """Affine baselines split into rotation and remainder per sensor (:func:`rotation_split`);
+    ``R_ref_imu`` from the gyroscope when diagnosed (its rotation is the better determined), and
+    the lever arm in both frames when the accelerometer has one."""
+    out: dict = {}
+    for s, r in results.items():
+        f = r.frame_fit if r.frame_fit is not None else r.final_all
+        cov = None if f.cov is None else f.cov[:9, :9]
+        out[s] = rotation_split(np.asarray(f.beta[:9]).reshape(3, 3), cov)
+    src = "gyr" if "gyr" in out else "acc"
+    out["R_ref_imu"] = out[src]["R_ref_imu"]
+    out["R_ref_imu_from"] = src
+    if "acc" in results:
+        a = results["acc"]
+        sl = E.slot("acc", "lever_arm")
+        if "lever_arm" in a.selected:
+            th, se = a.final_all.theta, a.final_all.se_theta
+            out["lever_arm"] = lever_arm_frames(th[sl.start : sl.start + 3], se[sl.start : sl.start + 3], out["R_ref_imu"])
+    return out
+
+
+def promise_violations(rep: dict) -> list[str]:
+    """Where a report breaks the promise of ``diagnose`` (empty when it keeps it):
+
+    * every named effect lowered the held-out rms the report prints (``after < before``);
+    * each sensor's final held-out rms is at most its baseline's;
+    * every named estimate lies inside its plausible range (``plausible_max_abs``).
+
+    Effects estimated on request (``forced``, ``jaxcal align``) are estimates, not names: they are
+    exempt, and so is the final-vs-baseline check of a sensor that has one.
+    """
+    out = []
+    forced = set()
+    for e in rep.get("effects", []):
+        if e.get("forced"):
+            forced.add(e["sensor"])
+            continue
+        b, a = e.get("heldout_rms_before"), e.get("heldout_rms_after")
+        if b is not None and a is not None and not a < b:
+            out.append(f"{e['sensor']} {e['name']}: held-out rms {b:.6g} -> {a:.6g}")
+        lim = e.get("plausible_max_abs")
+        if lim is not None:
+            v = np.concatenate([np.ravel(np.asarray(p, float)) for k, p in e["params"].items() if k != "T0"])
+            if np.max(np.abs(v)) > lim:
+                out.append(f"{e['sensor']} {e['name']}: estimate {np.max(np.abs(v)):.3g} beyond the plausible {lim:g}")
+    for s, f in rep.get("final", {}).items():
+        b = rep["baseline"][s]["heldout_rms"]
+        if s not in forced and f["heldout_rms"] > b:
+            out.append(f"{s}: final held-out rms {f['heldout_rms']:.6g} above the baseline's {b:.6g}")
+    return out
 
 
 def _fmt(v) -> str:
@@ -98,6 +205,9 @@ def report_markdown(rep: dict) -> str:
          f"Baseline `{rep['baseline_kind']}`, {rep['n_samples']} samples at {1 / rep['dt_s']:.1f} Hz, run time {rep['runtime_s']:.1f} s.", ""]
     for n in rep["notes"]:
         L.append(f"- note: {n}")
+    if rep.get("reference_band"):
+        b = rep["reference_band"]
+        L.append(f"- band used: 0-{b['band_hz'][1]:.1f} Hz (Gaussian sigma {b['sigma_s'] * 1e3:.0f} ms, {b['chosen_by']}): {b['reason']}")
     L += ["", "## Fit before and after (physical units; held-out = time blocks the fit never saw)", "",
           "Held-out rms with the noise model's (GLS) fit; in brackets with a least-squares fit on the physical residual.", "",
           "| sensor | baseline rms | baseline held-out rms | final rms | final held-out rms |", "|---|---|---|---|---|"]
@@ -121,6 +231,19 @@ def report_markdown(rep: dict) -> str:
             se = "; ".join(f"{k}: {_fmt(v)}" for k, v in e["stderr"].items())
             hb = "-" if e["heldout_rms_before"] is None else f"{e['heldout_rms_before']:.4g} -> {e['heldout_rms_after']:.4g}"
             L.append(f"| {e['name']} | {e['sensor']} | {ps} ({e['unit']}) | {se} | {hb} | {e['stat']:.1f} ({e['dof']}), {e['log10_p']:.1f} |")
+    fr = rep.get("frames")
+    if fr:
+        L += ["", "## Frames (affine baseline split into rotation and remainder)", "",
+              "| sensor | rotation (deg) | rotation vector, IMU from reference (deg) | scale | non-orthogonality (rad) |", "|---|---|---|---|---|"]
+        for s in ("acc", "gyr"):
+            if s in fr:
+                f = fr[s]
+                rot = f"{f['rotation_deg']:.3f}" + (f" +- {1.96 * f['rotation_deg_stderr']:.3f}" if "rotation_deg_stderr" in f else "")
+                L.append(f"| {s} | {rot} | {_fmt(f['rotvec_imu_ref_deg'])} | {_fmt(f['scale'])} | {_fmt(f['non_orthogonality_rad'])} |")
+        if "lever_arm" in fr:
+            la = fr["lever_arm"]
+            L += ["", f"Lever arm (IMU relative to the reference point): {_fmt(la['r_ref_frame_m'])} m in the reference frame "
+                  f"(s.e. {_fmt(la['r_ref_frame_stderr_m'])}), {_fmt(la['r_imu_frame_m'])} m in the IMU frame; |r| = {la['norm_m']:.4f} m."]
     L += ["", "## Tested and rejected", "", "| effect | sensor | chi2 (dof) | log10 p | reason | min. detectable (per component) |", "|---|---|---|---|---|---|"]
     for e in rep["rejected"]:
         m = e.get("mds") or {}

@@ -351,39 +351,69 @@ class Decision(NamedTuple):
     heldout_gain: float  # whitened held-out RSS decrease (>0: better)
     selected: bool
     reason: str
+    heldout_rms_change: float = float("nan")  # physical held-out RMS after minus before (<0: better)
 
 
-def cv_rss(S: System, cols: list[int], whitened: bool = True, fit: str = "gls") -> float:
+def cv_rss(S: System, cols: list[int], whitened: bool = True, fit: str = "gls", bias_cols: list[int] | None = None) -> float:
     """Leave-one-block-out held-out RSS: block ``k`` predicted by the fit on all other blocks.
 
     ``whitened``: score the whitened (True) or physical residual. ``fit``: ``"gls"`` fits on the
     whitened normal equations (the noise model's estimate), ``"ols"`` on the physical ones (least
-    squares on the very RSS that the physical score measures)."""
+    squares on the very RSS that the physical score measures). ``bias_cols``: with a ``gls`` fit scored
+    on the physical residual, these bias columns are re-levelled on the training blocks
+    (:func:`_relevel`), as the final fit is."""
     if fit not in ("gls", "ols"):
         raise ValueError(f"fit must be 'gls' or 'ols', got {fit!r}")
     G, g, zz = (S.G, S.g, S.zz) if whitened else (S.Gu, S.gu, S.zzu)
     Gf, gf = (S.G, S.g) if fit == "gls" else (S.Gu, S.gu)
     Gw, gw = Gf.sum(0), gf.sum(0)
+    Guw, guw = S.Gu.sum(0), S.gu.sum(0)
+    relevel = (not whitened) and fit == "gls" and bias_cols is not None
     tot = 0.0
     for k in range(S.G.shape[0]):
         th = _solve(Gw - Gf[k], gw - gf[k], cols)
+        if relevel:
+            th = _relevel(Guw - S.Gu[k], guw - S.gu[k], cols, th, bias_cols)
         tot += rss(G[k], g[k], float(zz[k]), cols, th)
     return tot
+
+
+def _relevel(Gu: np.ndarray, gu: np.ndarray, cols: list[int], th: np.ndarray, bias_cols: list[int]) -> np.ndarray:
+    """Re-level a noise-model fit: each bias column set to the plain mean of the physical residual
+    of its axis (one exact coordinate step: bias columns are per-axis indicators, so they are
+    mutually orthogonal). A random-walk noise model's whitening annihilates a constant, so its fit
+    cannot see the bias; the final fit re-levels the same way (``diagnose_sensor``)."""
+    th = th.copy()
+    for b in bias_cols:
+        j = cols.index(b)
+        d = Gu[b, b]
+        if d > 0:
+            th[j] += (gu[b] - Gu[b, cols] @ th) / d
+    return th
 
 
 def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselected: list[str], level: float):
     """Greedy forward selection on a :class:`System`.
 
+    A candidate joins only when three verdicts agree: the whitened chi-square test passes at
+    ``level``, the whitened held-out RSS falls, and the **physical** held-out RMS (the number the
+    report prints, :func:`heldout_rms_path`) falls. Where the whitened verdicts and the physical
+    score disagree, the noise model and the data disagree; the candidate is not named and its
+    decision says so.
+
     Returns ``(selected names in order, decisions {name: Decision}, solution on all blocks, cols)``.
     """
     nb = E.N_BASE[kind]
     Ga, ga, zza = S.G_all, S.g_all, S.zz_all
+    n_phys = max(float(S.nu.sum()), 1.0)
     cols = list(range(nb))
     for n in preselected:
         cols += group_columns(kind, sensor, n)
     th = _solve(Ga, ga, cols)
     cur = rss(Ga, ga, zza, cols, th)
     cur_cv = cv_rss(S, cols)
+    bias = list(range(nb - 3, nb))
+    cur_phys = float(np.sqrt(max(cv_rss(S, cols, whitened=False, bias_cols=bias), 0.0) / n_phys))
     selected = list(preselected)
     decisions: dict[str, Decision] = {}
     remaining = [c for c in cands if c not in selected]
@@ -398,14 +428,24 @@ def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselec
             lp = float(stats.chi2.logsf(max(stat, 0.0), dof) / np.log(10))
             sig = lp < np.log10(level)
             gain = cur_cv - cv_rss(S, cc) if sig else float("nan")
-            ok = sig and gain > 0
-            reason = "selected" if ok else ("not significant" if not sig else "no held-out improvement")
-            decisions[c] = Decision(c, float(stat), dof, lp, float(gain), False, reason)
+            phys = float(np.sqrt(max(cv_rss(S, cc, whitened=False, bias_cols=bias), 0.0) / n_phys)) if sig else float("nan")
+            dphys = phys - cur_phys
+            ok = sig and gain > 0 and dphys < 0
+            if not sig:
+                reason = "not significant"
+            elif gain <= 0:
+                reason = "no held-out improvement"
+            elif not dphys < 0:
+                reason = (f"whitened test passes but the physical held-out rms does not fall ({cur_phys:.5g} -> {phys:.5g}): "
+                          "the noise model and the data disagree, so it is not named")
+            else:
+                reason = "selected"
+            decisions[c] = Decision(c, float(stat), dof, lp, float(gain), False, reason, dphys)
             if ok and (best is None or lp < best[1]):
-                best = (c, lp, cc, t2, cur_cv - gain)
+                best = (c, lp, cc, t2, cur_cv - gain, phys)
         if best is None:
             break
-        c, _, cols, th, cur_cv = best
+        c, _, cols, th, cur_cv, cur_phys = best
         decisions[c] = decisions[c]._replace(selected=True)
         cur = rss(Ga, ga, zza, cols, th)
         selected.append(c)
@@ -415,7 +455,8 @@ def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselec
 
 def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str], fit: str = "gls") -> list[float]:
     """Cross-validated held-out RMS (physical units) as the effects of ``order`` are added;
-    parameters fitted by ``fit`` (see :func:`cv_rss`)."""
+    parameters fitted by ``fit`` (see :func:`cv_rss`; a ``gls`` fit has its biases re-levelled on
+    the training blocks' physical residual, as the final fit has)."""
     nb = E.N_BASE[kind]
     cols = list(range(nb))
     out = []
@@ -423,7 +464,7 @@ def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str], fit: s
     for k in range(len(order) + 1):
         if k > 0:
             cols = cols + group_columns(kind, sensor, order[k - 1])
-        out.append(float(np.sqrt(max(cv_rss(S, cols, whitened=False, fit=fit), 0.0) / n)))
+        out.append(float(np.sqrt(max(cv_rss(S, cols, whitened=False, fit=fit, bias_cols=list(range(nb - 3, nb))), 0.0) / n)))
     return out
 
 
