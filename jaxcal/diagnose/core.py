@@ -368,14 +368,12 @@ def _refine_tau(kind: str, sd: SensorData, tau_c: float, ars, rows: np.ndarray, 
 
 
 def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, _relin: tuple | None = None,
-                    meas: E.Inputs | None = None, force: tuple[str, ...] = (), lag_hint: int | None = None,
-                    tau_fixed: float | None = None) -> SensorResult:
+                    meas: E.Inputs | None = None, force: tuple[str, ...] = (), lag_hint: int | None = None) -> SensorResult:
     """Locate-name-refit for one sensor; ``n_tests`` is the Bonferroni count of the recording.
 
     ``force``: effects estimated whatever the tests say (``jaxcal align`` estimates the time offset
     and lever arm of every rig); they are reported as estimates, not as discoveries. ``lag_hint``:
     the coarse lag (samples) another sensor on the same clock found; used where it fits better.
-    ``tau_fixed``: hold this sensor's time offset at this value (s) instead of estimating it.
 
     The promise of the report, enforced here: every named effect lowers the physical held-out rms
     that the report prints (an effect that does not is demoted to ``rejected`` with a warning that
@@ -391,17 +389,13 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     dt = float(sd.inp.dt)
     warnings: list[str] = []
     cands = candidates(kind, sd)
-    if tau_fixed is not None:  # the clock offset is known (the other sensor's): held, not estimated
-        cands = [c for c in cands if c != "time_offset"]
-        force = tuple(c for c in force if c != "time_offset")
-        _relin = None
     pre: list[str] = []
     decisions: dict = {}
     # coarse time offset: cross-correlation over +-max_lag_s, then a likelihood-ratio check
     x_in = np.asarray(sd.inp.f if s == "acc" else sd.inp.w)
     max_lag = int(min(cfg.max_lag_s / dt, len(sd.y) // 10))
-    lag = 0 if tau_fixed is not None else coarse_lag(sd.y, x_in, sd.valid, max_lag)
-    if tau_fixed is None and lag_hint is not None and lag_hint != lag and abs(lag_hint) <= max_lag:
+    lag = coarse_lag(sd.y, x_in, sd.valid, max_lag)
+    if lag_hint is not None and lag_hint != lag and abs(lag_hint) <= max_lag:
         # the other sensor runs on the same clock: take its lag where it explains this sensor better
         # (an accelerometer's cross-correlation is dominated by slow gravity and can miss a clock offset)
         e = _edge_rows(sd.valid, max(abs(lag), abs(lag_hint)) * dt, dt)
@@ -426,9 +420,6 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             tau_lin = _refine_tau(kind, sd, tau_c, ars, rows, dt)
             pre.append("time_offset")
             warnings.append(f"{s}: coarse search found a large time offset of {tau_lin * 1e3:.1f} ms ({lag} samples, refined to a fraction of a sample); refined below")
-    if tau_fixed is not None:
-        tau_lin = float(tau_fixed)
-        warnings.append(f"{s}: time offset held at {tau_lin * 1e3:.3f} ms, the other sensor's (one IMU clock)")
     pre += [c for c in force if c not in pre and c in cands]
     fit_rows = _edge_rows(sd.valid, tau_lin, dt)
     theta_lin = _theta_with_tau(s, tau_lin)
@@ -611,36 +602,31 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
 
 
 def diagnose_prepared(prep: Prepared, kind: str, cfg: SelectConfig = SelectConfig(),
-                      force: Mapping[str, tuple[str, ...]] | None = None, one_clock: bool = False) -> dict[str, SensorResult]:
+                      force: Mapping[str, tuple[str, ...]] | None = None) -> dict[str, SensorResult]:
     """:func:`diagnose_sensor` for every sensor of a :class:`Prepared` recording (one Bonferroni
     family over all of them); ``force`` per sensor as in :func:`diagnose_sensor`. The gyroscope
-    runs first and its coarse clock offset guides the accelerometer's search; with ``one_clock``
-    (``jaxcal align``: both sensors on the IMU's clock) the accelerometer's time offset is held at
-    the gyroscope's estimate, whose regressor (the rate's derivative) is the sharper."""
+    runs first and its coarse clock offset guides the accelerometer's search."""
     n_tests = sum(len(candidates(kind, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
     force = dict(force or {})
     out: dict[str, SensorResult] = {}
     hint = None
     for s in sorted(prep.sensors, key=lambda k: k != "gyr"):  # the gyroscope first: its clock offset is the sharper
-        tau_fixed = None
-        if one_clock and s == "acc" and "gyr" in out and "time_offset" in out["gyr"].selected:
-            tau_fixed = float(out["gyr"].final_all.theta[E.slot("gyr", "time_offset").start])
         out[s] = diagnose_sensor(kind, prep.sensors[s], cfg, n_tests, meas=measured_inputs(prep, s), force=tuple(force.get(s, ())),
-                                 lag_hint=hint, tau_fixed=tau_fixed)
+                                 lag_hint=hint)
         if s == "gyr" and out[s].tau_lin != 0.0:
             hint = int(round(out[s].tau_lin / prep.dt))
     return {s: out[s] for s in prep.sensors}
 
 
 def diagnose_banded(rec: Any, kind: str, cfg: SelectConfig = SelectConfig(), force: Mapping[str, tuple[str, ...]] | None = None,
-                    pose_sigma: float | None = None, one_clock: bool = False) -> tuple[dict[str, Prepared], dict[str, SensorResult]]:
+                    pose_sigma: float | None = None) -> tuple[dict[str, Prepared], dict[str, SensorResult]]:
     """Prepare and diagnose a recording, each sensor in its own trusted band.
 
     With a pose-derived reference and ``pose_sigma=None``, :mod:`jaxcal.diagnose.band` may give
     the accelerometer a wider kernel than the gyroscope (the position's second derivative is
     noisier than the rotation's first); each sensor is then prepared with its own kernel and
     decimation and diagnosed there, the gyroscope first (its clock offset guides the
-    accelerometer's search, or with ``one_clock`` fixes it). Returns ``({sensor: Prepared},
+    accelerometer's search). Returns ``({sensor: Prepared},
     {sensor: SensorResult})``; one shared :class:`Prepared` when a single kernel serves both.
     """
     prep = prepare(rec, pose_sigma=pose_sigma)
@@ -648,7 +634,7 @@ def diagnose_banded(rec: Any, kind: str, cfg: SelectConfig = SelectConfig(), for
         raise ValueError("no sensor with a matching reference to diagnose")
     sig = prep.sigma_by_sensor or {}
     if prep.band is None or len(set(sig.values())) <= 1:
-        res = diagnose_prepared(prep, kind, cfg, force, one_clock)
+        res = diagnose_prepared(prep, kind, cfg, force)
         return {s: prep for s in res}, res
     force = dict(force or {})
     n_tests = sum(len(candidates(kind, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
@@ -657,13 +643,10 @@ def diagnose_banded(rec: Any, kind: str, cfg: SelectConfig = SelectConfig(), for
     for s in sorted(prep.sensors, key=lambda k: k != "gyr"):
         ps = prep if sig[s] == prep.pose_sigma else prepare(rec, pose_sigma=sig[s], band=prep.band)
         ps = ps._replace(band=prep.band, sigma_by_sensor=sig)
-        hint, tau_fixed = None, None
-        if s == "acc" and "gyr" in out:
-            if out["gyr"].tau_lin != 0.0:
-                hint = int(round(out["gyr"].tau_lin / ps.dt))
-            if one_clock and "time_offset" in out["gyr"].selected:
-                tau_fixed = float(out["gyr"].final_all.theta[E.slot("gyr", "time_offset").start])
+        hint = None
+        if s == "acc" and "gyr" in out and out["gyr"].tau_lin != 0.0:
+            hint = int(round(out["gyr"].tau_lin / ps.dt))
         preps[s] = ps
         out[s] = diagnose_sensor(kind, ps.sensors[s], cfg, n_tests, meas=measured_inputs(ps, s), force=tuple(force.get(s, ())),
-                                 lag_hint=hint, tau_fixed=tau_fixed)
+                                 lag_hint=hint)
     return {s: preps[s] for s in prep.sensors}, {s: out[s] for s in prep.sensors}
