@@ -687,8 +687,11 @@ def rigs_markdown(res: dict) -> str:
         for name, c in conc:
             hb = f"{c['heldout_rms_before']:.4g} -> {c['heldout_rms_after']:.4g}" if c.get("heldout_rms_before") else "-"
             ins = f"{sum(c['inside_95'])}/{len(c['inside_95'])}" if c.get("inside_95") is not None else "-"
+            lim = E.PLAUSIBLE_RANGE.get((c["effect"], c["sensor"]))
+            beyond = lim is not None and float(np.max(np.abs(c["truth"]))) > lim
+            named = "yes" if c["named"] else (f"no: 3x MDS lies beyond the plausible {lim:g}, so by design a warning" if beyond else "NO")
             L.append(f"| {name} | {c['sensor']} | {c['effect']} | {_fmt(c['truth'], 3)} | {_fmt(c['recovered'], 3) if c.get('recovered') is not None else '-'} | "
-                     f"{'yes' if c['named'] else 'NO'} | {ins} | {', '.join(c['other_effects']) or '-'} | {hb} | "
+                     f"{named} | {ins} | {', '.join(c['other_effects']) or '-'} | {hb} | "
                      f"{'yes' if not c['promise_violations'] else c['promise_violations']} |")
     L += ["", "Alignment residuals before/after (`jaxcal align` figure), as recorded and first stressed realisation:", ""]
     for name, r in res["recordings"].items():

@@ -368,7 +368,8 @@ def _refine_tau(kind: str, sd: SensorData, tau_c: float, ars, rows: np.ndarray, 
 
 
 def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, _relin: tuple | None = None,
-                    meas: E.Inputs | None = None, force: tuple[str, ...] = (), lag_hint: int | None = None) -> SensorResult:
+                    meas: E.Inputs | None = None, force: tuple[str, ...] = (), lag_hint: int | None = None,
+                    _no_offset: bool = False) -> SensorResult:
     """Locate-name-refit for one sensor; ``n_tests`` is the Bonferroni count of the recording.
 
     ``force``: effects estimated whatever the tests say (``jaxcal align`` estimates the time offset
@@ -389,12 +390,15 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     dt = float(sd.inp.dt)
     warnings: list[str] = []
     cands = candidates(kind, sd)
+    if _no_offset:  # internal: a time offset was tested and did not lower the held-out rms
+        cands = [c for c in cands if c != "time_offset"]
+        lag_hint = None
     pre: list[str] = []
     decisions: dict = {}
     # coarse time offset: cross-correlation over +-max_lag_s, then a likelihood-ratio check
     x_in = np.asarray(sd.inp.f if s == "acc" else sd.inp.w)
     max_lag = int(min(cfg.max_lag_s / dt, len(sd.y) // 10))
-    lag = coarse_lag(sd.y, x_in, sd.valid, max_lag)
+    lag = 0 if _no_offset else coarse_lag(sd.y, x_in, sd.valid, max_lag)
     if lag_hint is not None and lag_hint != lag and abs(lag_hint) <= max_lag:
         # the other sensor runs on the same clock: take its lag where it explains this sensor better
         # (an accelerometer's cross-correlation is dominated by slow gravity and can miss a clock offset)
@@ -537,7 +541,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         if c in decisions:
             decisions[c] = decisions[c]._replace(reason=decisions[c].reason + f"; confounded with {', '.join(confounded[c])}")
     order = [c for c in selected]
-    fixed = set(pre) | set(force)  # coarse time offset and forced effects: estimated, not gated
+    fixed = set(force)  # effects estimated on request are estimates, not names: not gated
     r_base, b_base = _baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), fit_rows)
     zt = np.zeros(E.N_THETA[s])
     base_all = RefitResult(b_base, zt, np.zeros(nb), zt, float("nan"), r_base)
@@ -563,9 +567,17 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         if worse:
             k = worse[0]
             name = order.pop(k)
-            decisions[name] = _demote(decisions[name], f"held-out rms does not fall when it is added ({path[k]:.5g} -> {path[k + 1]:.5g})")
-            warnings.append(f"{s} {name}: significant in the whitened test but it does not lower the physical held-out rms "
-                            f"({path[k]:.5g} -> {path[k + 1]:.5g} {UNIT_OF[s]}), so it is not named; the residual lives {where_text}")
+            why = f"held-out rms does not fall when it is added ({path[k]:.5g} -> {path[k + 1]:.5g})"
+            warn = (f"{s} {name}: significant in the whitened test but it does not lower the physical held-out rms "
+                    f"({path[k]:.5g} -> {path[k + 1]:.5g} {UNIT_OF[s]}), so it is not named; the residual lives {where_text}")
+            if name == "time_offset" and tau_lin != 0.0:
+                # the model is linearised at that offset: diagnose again without one
+                res = diagnose_sensor(kind, sd, cfg, n_tests, None, meas, force, None, _no_offset=True)
+                res.decisions["time_offset"] = _demote(decisions[name], why)._asdict()
+                res.warnings.append(warn)
+                return res
+            decisions[name] = _demote(decisions[name], why)
+            warnings.append(warn)
             continue
         theta0 = full[nb:] + theta_lin
         beta0 = beta + full[:nb]
