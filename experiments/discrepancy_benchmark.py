@@ -404,6 +404,12 @@ def _fmt(v, nd=4) -> str:
     return str([float(f"{x:.{nd}g}") for x in np.ravel(v)])
 
 
+def _band_text(rep: dict) -> str:
+    b = rep.get("reference_band") or {}
+    sig = b.get("sigma_by_sensor_s") or {}
+    return ", ".join(f"{k} sigma {v * 1e3:.0f} ms" for k, v in sig.items()) or "fixed kernel"
+
+
 def real_markdown(res: dict) -> str:
     pre = res.get("figure_prefix", "discrepancy")
     if "missing" in res:
@@ -411,7 +417,8 @@ def real_markdown(res: dict) -> str:
     rep = res["as_recorded"]
     L = ["## Real recording: TUM-VI room1 (BMI160 IMU against motion capture)", "",
          f"Written by `experiments/discrepancy_benchmark.py` (`--part real`). {res['n_imu_samples']} IMU samples ({res['duration_s']:.0f} s at 200 Hz); the "
-         "reference (rate, angular acceleration, specific force) is derived from the mocap pose with a 20 ms Gaussian kernel, the IMU "
+         "reference (rate, angular acceleration, specific force) is derived from the mocap pose with Gaussian kernels chosen per sensor "
+         f"from where the reference keeps its gain against the sensor ({_band_text(rep)}), the IMU "
          f"outputs are smoothed alike and decimated to {1 / rep['dt_s']:.0f} Hz ({rep['n_samples']} samples); no temperature channel, so "
          f"temperature effects are not testable. Diagnosis time as recorded {res['as_recorded_time_s']:.1f} s; over all "
          f"{res['timing']['runs']} diagnoses of this recording median {res['timing']['median_diagnosis_s']:.1f} s, "
