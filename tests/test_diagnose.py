@@ -36,7 +36,7 @@ def _inputs(n=500, seed=0):
 @pytest.mark.parametrize("kind", ["diag", "affine"])
 def test_zero_effects_is_the_baseline(sensor, kind):
     with jax.enable_x64(True):
-        inp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in _inputs()])
+        inp = E.as_jax(_inputs())
         beta = E.identity_beta(kind) + 0.01 * np.arange(E.N_BASE[kind])
         y = E.model_output(kind, sensor, jnp.asarray(beta), jnp.zeros(E.N_THETA[sensor], jnp.float64), inp)
         x = inp.f if sensor == "acc" else inp.w

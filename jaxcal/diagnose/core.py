@@ -192,10 +192,10 @@ def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float 
         valid = np.ones(len(t), bool)
         for s in sig:
             ref = K.reference_from_pose(t, pos, quat, sig[s])
-            per_sensor[s] = (ref["acc_ref"], ref["gyr_ref"], ref["wdot_ref"])
+            per_sensor[s] = (ref["acc_ref"], ref["gyr_ref"], ref["wdot_ref"], ref["ww_ref"].reshape(-1, 9))
             valid &= ref["valid"]
             raw[s] = K._conv(raw[s], K.gaussian_kernels(sig[s], dt)[0])
-        f, w, wdot = per_sensor["gyr" if "gyr" in per_sensor else "acc"]
+        f, w, wdot, _ = per_sensor["gyr" if "gyr" in per_sensor else "acc"]
         h0 = K.gaussian_kernels(pose_sigma, dt)[0]
         if temp is not None:
             temp = K._conv(np.asarray(temp, np.float64)[:, None], h0)[:, 0]
@@ -247,8 +247,10 @@ def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float 
             continue
         if s == "gyr" and gyr_ref is None and pos is None:
             continue
+        ww = None
         if s in per_sensor:  # pose-derived, with this sensor's own kernel width
-            f, w, wdot = per_sensor[s]
+            f, w, wdot, ww = per_sensor[s]
+            ww = ww.reshape(-1, 3, 3)
         x = f if s == "acc" else w
         if s == "gyr" and acc_ref is None and raw["acc"] is not None and pos is None:
             sca, bia = _spec(rec, "acc", raw["acc"], f, valid, notes)
@@ -256,7 +258,7 @@ def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float 
         sc, bi = _spec(rec, s, raw[s], x, valid, notes)
         y = (raw[s] - bi) / sc
         is_counts = (not smoothed) and str(_get(rec, f"{s}_unit") or "LSB") == "LSB"
-        inp = E.Inputs(f, w, wdot, tc, dT, np.asarray(dt))
+        inp = E.Inputs(f, w, wdot, tc, dT, np.asarray(dt), ww)
         out[s] = SensorData(s, y, raw[s] if is_counts else None, sc, bi, inp, valid.copy(), block, temp is not None)
     return Prepared(out, t, temp, dt, notes, smoothed, band, pose_sigma if smoothed else None,
                     {s: float(v) for s, v in (sig.items() if smoothed else ())})
@@ -271,7 +273,7 @@ def measured_inputs(prep: Prepared, s: str) -> E.Inputs | None:
         return None
     inp = prep.sensors[s].inp
     w = np.asarray(prep.sensors["gyr"].y)
-    return inp._replace(f=np.asarray(prep.sensors["acc"].y), w=w, wdot=K.derivative5(w, prep.dt))
+    return inp._replace(f=np.asarray(prep.sensors["acc"].y), w=w, wdot=K.derivative5(w, prep.dt), ww=None)
 
 
 class SensorResult(NamedTuple):
@@ -374,7 +376,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
 
     ``force``: effects estimated whatever the tests say (``jaxcal align`` estimates the time offset
     and lever arm of every rig); they are reported as estimates, not as discoveries. ``lag_hint``:
-    the coarse lag (samples) another sensor on the same clock found; used where it fits better.
+    the coarse lag (samples) another sensor on the same clock found; taken as this sensor's candidate.
 
     The promise of the report, enforced here: every named effect lowers the physical held-out rms
     that the report prints (an effect that does not is demoted to ``rejected`` with a warning that
@@ -399,13 +401,12 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     x_in = np.asarray(sd.inp.f if s == "acc" else sd.inp.w)
     max_lag = int(min(cfg.max_lag_s / dt, len(sd.y) // 10))
     lag = 0 if _no_offset else coarse_lag(sd.y, x_in, sd.valid, max_lag)
-    if lag_hint is not None and lag_hint != lag and abs(lag_hint) <= max_lag:
-        # the other sensor runs on the same clock: take its lag where it explains this sensor better
-        # (an accelerometer's cross-correlation is dominated by slow gravity and can miss a clock offset)
-        e = _edge_rows(sd.valid, max(abs(lag), abs(lag_hint)) * dt, dt)
-        rss_of = lambda l: float(np.sum(_baseline_resid(kind, sd, _theta_with_tau(s, l * dt), e)[0][e] ** 2))  # noqa: E731
-        if rss_of(lag_hint) < rss_of(lag):
-            lag = int(lag_hint)
+    if lag_hint is not None and abs(lag_hint) <= max_lag:
+        # the other sensor runs on the same clock and its lag is the sharper: an accelerometer's
+        # cross-correlation is dominated by slow gravity, and effects the baseline leaves out (a lever
+        # arm at high rates) swamp any comparison of lags by baseline fit; the likelihood-ratio check
+        # below still decides whether this sensor has the offset at all
+        lag = int(lag_hint)
     tau_lin = 0.0
     coarse = None
     if _relin is not None:
@@ -581,6 +582,10 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
             continue
         theta0 = full[nb:] + theta_lin
         beta0 = beta + full[:nb]
+        for n in order:  # a linearised start far outside the plausible range only misleads the solver
+            if E.implausible(s, n, theta0) > 1.0:
+                sl = E.slot(s, n)
+                theta0[sl.start : sl.start + sl.size] = theta_lin[sl.start : sl.start + sl.size]
         final_all = refit(kind, s, beta0, theta0, order, sd.inp, sd.y, fit_rows, ars, sd.block) if order else base_all
         bad = [(E.implausible(s, n, final_all.theta), n) for n in order if n not in force]
         bad = [b for b in bad if b[0] > 1.0]

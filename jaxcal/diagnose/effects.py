@@ -228,7 +228,9 @@ class Inputs(NamedTuple):
 
     ``f`` specific force (g), ``w`` body rate (rad/s), ``wdot`` angular acceleration (rad/s^2),
     ``tc`` time from the recording's middle (s), ``dT`` temperature minus its mean (degC, zeros
-    without a temperature channel), ``dt`` sample interval (s).
+    without a temperature channel), ``dt`` sample interval (s); optional ``ww`` the centripetal
+    operator ``[w]x [w]x`` smoothed as a product (a pose-derived reference: the sensor's smoothed
+    output holds the smoothed product, not the product of smoothed rates, which differ at high rates).
     """
 
     f: Float[Array, "N 3"]
@@ -237,6 +239,12 @@ class Inputs(NamedTuple):
     tc: Float[Array, " N"]
     dT: Float[Array, " N"]
     dt: Float[Array, ""]
+    ww: Float[Array, "N 3 3"] | None = None  # smoothed [w]x[w]x (the centripetal operator); None: from ``w``
+
+
+def as_jax(inp: Inputs, dtype=jnp.float64) -> Inputs:
+    """``inp`` with every present field a JAX array of ``dtype`` (absent optional fields stay None)."""
+    return Inputs(*[None if a is None else jnp.asarray(a, dtype) for a in inp])
 
 
 def shift_signal(x: Float[Array, "N C"], tau: Float[Array, ""], dt: float | Float[Array, ""]) -> Float[Array, "N C"]:
@@ -263,7 +271,8 @@ def sensor_input(sensor: str, theta: Float[Array, " P"], inp: Inputs) -> Float[A
     p = _split(sensor, theta)
     if sensor == "acc":
         r = p["lever_arm"]
-        rot = jnp.cross(inp.wdot, r) + jnp.cross(inp.w, jnp.cross(inp.w, r))
+        cen = jnp.cross(inp.w, jnp.cross(inp.w, r)) if inp.ww is None else jnp.einsum("nij,j->ni", inp.ww, r)
+        rot = jnp.cross(inp.wdot, r) + cen
         return inp.f + rot / G0
     g = p["g_sensitivity"].reshape(3, 3)
     return inp.w + inp.f @ g.T

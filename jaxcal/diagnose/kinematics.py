@@ -131,11 +131,17 @@ def reference_from_pose(
     f1 = _conv(r[:, 2, :], gaussian_kernels(s1, dt)[0]) + np.einsum("nji,nj->ni", r, a_world / G0)
     s2 = float(np.sqrt(max(sigma**2 - s1**2, 0.0)))
     f = _conv(f1, gaussian_kernels(s2, dt)[0]) if s2 > 0.25 * dt else f1
+    # the centripetal operator [w]x[w]x = w w^T - |w|^2 I, smoothed as a product in the same two stages
+    w1 = _conv(w, gaussian_kernels(s1, dt)[0])
+    wwt = (w1[:, :, None] * w1[:, None, :]).reshape(-1, 9)
+    ww = _conv(wwt, gaussian_kernels(s2, dt)[0]) if s2 > 0.25 * dt else wwt
+    ww = ww.reshape(-1, 3, 3)
+    ww = ww - np.trace(ww, axis1=1, axis2=2)[:, None, None] * np.eye(3)
     half = max(half, int(np.ceil(4.0 * (s1 + s2) / dt)))  # support of the two-stage kernel
     valid = _gap_mask(bad, half + 1)
     valid[: half + 1] = False
     valid[-half - 1 :] = False
-    return {"gyr_ref": w_s, "wdot_ref": wdot, "acc_ref": f, "valid": valid}
+    return {"gyr_ref": w_s, "wdot_ref": wdot, "acc_ref": f, "ww_ref": ww, "valid": valid}
 
 
 def reference_gap_mask(t: np.ndarray, t_track: np.ndarray, max_gap: float = 1.5, max_dist: float = 1.1) -> np.ndarray:

@@ -162,7 +162,7 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     row_w = np.stack([gap_ok(rows, ar.memory) for ar in ars], 1).astype(np.float64)
     nb = E.N_BASE[kind]
     with jax.enable_x64(True):
-        jinp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in inp])
+        jinp = E.as_jax(inp)
         phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
         args = (jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64), jnp.asarray(fill_index(rows)))
         filt = (jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(a) for a in th))

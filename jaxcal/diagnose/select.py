@@ -83,7 +83,7 @@ def _linearize(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
 def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
     """``(X (N, 3, B+P), z (N, 3))``: regressors [baseline | effects] and residual at (beta, theta)."""
     with jax.enable_x64(True):
-        inp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in sd.inp])
+        inp = E.as_jax(sd.inp)
         jb, jt, z = _linearize(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
         return np.concatenate([np.asarray(jb), np.asarray(jt)], axis=2), np.asarray(z)
 
@@ -98,7 +98,7 @@ def _linearize_base(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
 def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
     """Like :func:`linearize` but only the baseline columns ``(X (N, 3, B), z (N, 3))``."""
     with jax.enable_x64(True):
-        inp = E.Inputs(*[jnp.asarray(a, jnp.float64) for a in sd.inp])
+        inp = E.as_jax(sd.inp)
         jb, z = _linearize_base(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
         return np.asarray(jb), np.asarray(z)
 
