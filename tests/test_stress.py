@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from jaxcal.diagnose import stress as S
 
-from helpers import FS, G0, T_END, make_rec, quat_wxyz, rot_of, truth_pos, truth_rate, truth_rot  # noqa: F401
+from helpers import FS, make_rec, rot_of, truth_pos, truth_rate, truth_rot
 
 
 def frozen(rec: dict) -> dict:

@@ -156,7 +156,6 @@ def align_recording(rec: Any, pose_sigma: float | None = None, config: SelectCon
     t_start = time.perf_counter()
     preps, results = diagnose_banded(rec, "affine", config, FORCE, pose_sigma)
     rep = build_report_banded(preps, results, "affine", time.perf_counter() - t_start)
-    prep = preps["gyr"]
     fr = rep["frames"]
     tau, tau_se, per = _combine_tau(rep)
     R = np.asarray(fr["R_ref_imu"])

@@ -180,7 +180,7 @@ def choose_sigma(pairs: dict, valid: np.ndarray, dt: float, sigma_range: tuple[f
               + ", ".join(f"{s} {edges[s]:.1f} Hz (coherence >= {threshold:g} up to {', '.join(f'{v:.1f}' for v in axis_edges[s])} Hz per axis)"
                           for s in edges)
               + (f" (after removing a {lag_s * 1e3:.0f} ms clock offset)" if lag_s else "")
-              + f"; the Gaussian kernel puts its half-power point at each sensor's edge (the gyroscope's at least): sigma "
+              + "; the Gaussian kernel puts its half-power point at each sensor's edge (the gyroscope's at least): sigma "
               + ", ".join(f"{s} {v * 1e3:.0f} ms" for s, v in by_sensor.items())
               + (" - clipped to the allowed widths" if not sigma_range[0] < HALF_POWER / max(lo, 1e-9) < sigma_range[1] else ""))
     return Band(sigma, (0.0, HALF_POWER / sigma), edges, axis_edges, reason, freq, cohs, by_sensor)
