@@ -10,12 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.core import FORCED, Prepared, SensorResult
+from jaxcal.diagnose.core import FORCED, UNIT_OF as UNIT, Prepared, SensorResult
 from jaxcal.diagnose.band import HALF_POWER
 from jaxcal.diagnose.frames import lever_arm_frames, rotation_split
 from jaxcal.diagnose.locate import allan_deviation, breakdown, whiteness
 
-UNIT = {"acc": "g", "gyr": "rad/s"}
 
 
 def _rms(r: np.ndarray, rows: np.ndarray) -> float:
@@ -26,7 +25,7 @@ def _se_params(sensor: str, name: str, se_theta: np.ndarray) -> dict:
     return E.params_from_theta(sensor, name, se_theta)
 
 
-def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, runtime_s: float) -> dict:
+def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, runtime_s: float, finish: bool = True) -> dict:
     """The ``report.json`` dict of CONVENTIONS.md (RMS in g / rad/s) with extra diagnostic fields."""
     rep: dict = {"baseline": {}, "effects": [], "rejected": [], "warnings": [], "final": {}}
     rep["baseline_kind"] = kind
@@ -96,12 +95,19 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
             "whiteness_before": whiteness(r.base_all.resid, rows, prep.dt),
             "whiteness_after": whiteness(r.final_all.resid, rows, prep.dt),
         }
+    if finish:
+        _finish(rep, results, kind)
+    rep["runtime_s"] = runtime_s
+    return rep
+
+
+def _finish(rep: dict, results: dict[str, SensorResult], kind: str) -> None:
+    """What a report holds about all its sensors together: the frames (affine), the plausible
+    ranges, and the effects sorted strongest first (estimates on request last)."""
     if kind == "affine":
         rep["frames"] = frames_report(results)
     rep["plausible_range"] = {f"{s} {n}": {"max_abs": v, "unit": E.UNITS[(n, s)]} for (n, s), v in E.PLAUSIBLE_RANGE.items() if s in results}
     rep["effects"].sort(key=lambda e: (np.inf if e.get("forced") else e["log10_p"]) if np.isfinite(e["log10_p"]) else np.inf)
-    rep["runtime_s"] = runtime_s
-    return rep
 
 
 def build_report_banded(preps: dict[str, Prepared], results: dict[str, SensorResult], kind: str, runtime_s: float) -> dict:
@@ -115,7 +121,7 @@ def build_report_banded(preps: dict[str, Prepared], results: dict[str, SensorRes
     order = sorted(results, key=lambda k: k != "gyr")
     rep = None
     for s in order:
-        r = build_report(preps[s], {s: results[s]}, kind, runtime_s)
+        r = build_report(preps[s], {s: results[s]}, kind, runtime_s, finish=False)
         r["sensors"][s]["n_samples"], r["sensors"][s]["dt_s"] = r["n_samples"], r["dt_s"]
         if rep is None:
             rep = r
@@ -125,10 +131,7 @@ def build_report_banded(preps: dict[str, Prepared], results: dict[str, SensorRes
         for k in ("effects", "rejected", "warnings"):
             rep[k] += r[k]
         rep["notes"] += [n for n in r["notes"] if n not in rep["notes"]]
-    if kind == "affine":
-        rep["frames"] = frames_report(results)
-    rep["plausible_range"] = {f"{s} {n}": {"max_abs": v, "unit": E.UNITS[(n, s)]} for (n, s), v in E.PLAUSIBLE_RANGE.items() if s in results}
-    rep["effects"].sort(key=lambda e: (np.inf if e.get("forced") else e["log10_p"]) if np.isfinite(e["log10_p"]) else np.inf)
+    _finish(rep, results, kind)
     return rep
 
 
