@@ -127,14 +127,15 @@ def reference_from_pose(
     # sensor's smoothed output holds by about sigma^2 w x da/dt, a rotation-correlated error that
     # a lever arm would absorb (5 cm at sigma = 90 ms on hand-held motion).
     s1 = min(sigma, FIRST_STAGE_SIGMA)
-    a_world = _conv(pos_f, gaussian_kernels(s1, dt)[2])
-    f1 = _conv(r[:, 2, :], gaussian_kernels(s1, dt)[0]) + np.einsum("nji,nj->ni", r, a_world / G0)
+    g1, _, g1_2 = gaussian_kernels(s1, dt)
+    a_world = _conv(pos_f, g1_2)
+    f1 = _conv(r[:, 2, :], g1) + np.einsum("nji,nj->ni", r, a_world / G0)
     s2 = float(np.sqrt(max(sigma**2 - s1**2, 0.0)))
-    f = _conv(f1, gaussian_kernels(s2, dt)[0]) if s2 > 0.25 * dt else f1
+    stage2 = (lambda x: _conv(x, gaussian_kernels(s2, dt)[0])) if s2 > 0.25 * dt else (lambda x: x)
+    f = stage2(f1)
     # the centripetal operator [w]x[w]x = w w^T - |w|^2 I, smoothed as a product in the same two stages
-    w1 = _conv(w, gaussian_kernels(s1, dt)[0])
-    wwt = (w1[:, :, None] * w1[:, None, :]).reshape(-1, 9)
-    ww = _conv(wwt, gaussian_kernels(s2, dt)[0]) if s2 > 0.25 * dt else wwt
+    w1 = _conv(w, g1)
+    ww = stage2((w1[:, :, None] * w1[:, None, :]).reshape(-1, 9))
     ww = ww.reshape(-1, 3, 3)
     ww = ww - np.trace(ww, axis1=1, axis2=2)[:, None, None] * np.eye(3)
     half = max(half, int(np.ceil(4.0 * (s1 + s2) / dt)))  # support of the two-stage kernel
