@@ -7,6 +7,11 @@ Both are written in the *forward* (physical) direction used by the thesis's simu
 
 and calibration applies the inverse (eq. 3.5) ``x = S^{-1} (y - b)``. For the diagonal model
 ``S = diag(s)``. Spec conversion (eq. 4.8) is the diagonal inverse with datasheet values.
+
+:class:`LinearCal` is the one interchange type for a linear calibration between modules: the
+*applied* form ``x = A (y - b)`` (``A = S^{-1}``). Every method, scorer, model file and peer adapter
+passes calibrations as ``LinearCal``; ``from_forward`` / ``to_forward`` / ``from_diag`` are the only
+converters.
 """
 
 from __future__ import annotations
@@ -33,6 +38,37 @@ class Affine(NamedTuple):
 
     S: Float[Array, "3 3"]
     b: Float[Array, "3"]
+
+
+class LinearCal(NamedTuple):
+    """A linear calibration in the applied direction: ``x = A (y - b)`` (eq. 3.5 with ``A = S^{-1}``).
+
+    Args:
+        A: (3, 3) matrix, physical unit per sensor unit (e.g. g/LSB); the inverse of the forward
+            model's ``S``.
+        b: (3,) bias in the sensor's units (e.g. LSB), subtracted before ``A``.
+    """
+
+    A: Float[Array, "3 3"]
+    b: Float[Array, "3"]
+
+    @classmethod
+    def from_forward(cls, p: Affine) -> "LinearCal":
+        """The calibration that undoes the forward model ``y = S x + b``: ``A = S^{-1}``."""
+        return cls(A=jnp.linalg.inv(jnp.asarray(p.S)), b=jnp.asarray(p.b))
+
+    @classmethod
+    def from_diag(cls, p: Diag) -> "LinearCal":
+        """The calibration that undoes the diagonal model ``y = s x + b``: ``A = diag(1 / s)``."""
+        return cls(A=jnp.diag(1.0 / jnp.asarray(p.s)), b=jnp.asarray(p.b))
+
+    def to_forward(self) -> Affine:
+        """The forward model ``y = S x + b`` with ``S = A^{-1}`` that this calibration inverts."""
+        return Affine(S=jnp.linalg.inv(self.A), b=self.b)
+
+    def apply(self, y: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+        """Calibrated values ``A (y - b)`` of sensor outputs ``y`` (rows)."""
+        return (y - self.b) @ self.A.T
 
 
 def diag_forward(p: Diag, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
