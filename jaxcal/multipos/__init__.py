@@ -14,8 +14,8 @@ and turns it by hand in between.
   from the static intervals, and optionally the g-sensitivity ``G_s`` (9 more). The rates are
   integrated between consecutive static poses, ``R = prod_n Exp(w_n dt_n)`` (midpoint rate,
   uneven ``dt`` kept; samples are grouped in blocks whose rotation vector is the second-order
-  Magnus sum, precomputed once from the raw data, see :class:`MultiposData`; blocks of 8 change
-  the Xsens angles by < 0.001 deg against the per-sample product), and under the physical convention (``CONVENTIONS.md``) the gravity
+  Magnus sum, precomputed once from the raw data, see :class:`MultiposData`; blocks of 8 barely change
+  the Xsens angles against the per-sample product, ``block=1``), and under the physical convention (``CONVENTIONS.md``) the gravity
   direction measured in pose ``j`` must be carried onto pose ``j + 1``: ``R^T u_j = u_{j+1}``.
 
 Optional extra gyro rows: sections of known rotation (:class:`KnownRotations`, e.g. a closed
@@ -29,90 +29,75 @@ the pose means (fallback: per-axis min/max), the gyro scale from a grid search o
 ``optimistix.LevenbergMarquardt`` least squares on pure residual functions, run in float64 and
 vmappable over per-pose / per-transition weights (used for leave-poses-out folds).
 
-Modules, in the order data flows through them (every name is re-exported here):
+Modules, in the order data flows through them (the user path is re-exported here; internals such
+as the residual functions and their argument types stay in their modules):
 
 * ``data``: :func:`prepare` (numpy: a recording plus static intervals to padded block sums),
-  :func:`prepare_known`, :func:`prepare_turns`;
-* ``acc``: :func:`fit_acc`, :func:`fit_acc_determined`, :class:`DatasheetPrior`;
-* ``gyro``: the gyro residuals and scores (:func:`gyr_residuals`, :func:`gyro_angle_errors`);
-* ``fit``: :func:`fit_prepared` (pure JAX, vmappable over weights), :func:`fit_multipos`;
+  :func:`prepare_known`, :func:`prepare_turns`; :func:`~jaxcal.multipos.data.calibrated_acc_sums`
+  and :data:`OBSERVABLE_TOL`, shared by the later stages;
+* ``acc``: :func:`fit_acc`, :func:`fit_acc_determined`, :class:`DatasheetPrior`
+  (:class:`~jaxcal.multipos.acc.AccArgs`, :func:`~jaxcal.multipos.acc.acc_residuals`);
+* ``gyro``: the gyro residuals and scores (:class:`~jaxcal.multipos.gyro.GyroArgs`,
+  :func:`~jaxcal.multipos.gyro.gyr_residuals`, :func:`gyro_angle_errors`);
+* ``fit``: :func:`fit_prepared` (pure JAX, vmappable over weights; :data:`fit_prepared_jit`),
+  :func:`fit_multipos`;
 * ``observe``: :func:`observability`, :func:`check_observable`;
 * ``detect``: :func:`fit_multipos_recording` (interval detection with imu_tk's threshold scan,
-  then the fit and its checks, observability and :func:`check_turns` for given turns;
-  forward-model :class:`~jaxcal.sensor.Affine` pairs for ``jaxcal calibrate --method multipos``);
+  :class:`DetectOptions`, then the fit and its checks, observability and :func:`check_turns` for
+  given turns; applied :class:`~jaxcal.sensor.LinearCal` pairs for
+  ``jaxcal calibrate --method multipos``);
 * ``heldout``: :func:`leave_poses_out`;
 * ``timesplit``: a held-out time split of a continuous Ferraris session (:func:`time_split`), fair
   to a labelled tool such as imucal and to multipos.
+
+Calibrations are :class:`~jaxcal.sensor.LinearCal` (applied direction ``x = A (y - b)``).
 """
 
 from __future__ import annotations
 
-from jaxcal.multipos.data import (  # noqa: F401
-    InverseAffine,
-    MultiposData,
-    prepare,
+from jaxcal.multipos.acc import MPU6050_PRIOR, DatasheetPrior, acc_norm_errors, fit_acc, fit_acc_determined
+from jaxcal.multipos.data import (
+    OBSERVABLE_TOL,
     KnownRotations,
-    prepare_known,
+    MultiposData,
     VerticalTurns,
-    rests_around,
+    prepare,
+    prepare_known,
     prepare_turns,
     turns_from_times,
 )
-from jaxcal.multipos.acc import (  # noqa: F401
-    DatasheetPrior,
-    MPU6050_PRIOR,
-    prior_rows,
-    acc_residuals,
-    ellipsoid_init,
-    fit_acc,
-    fit_acc_determined,
-    acc_norm_errors,
-)
-from jaxcal.multipos.gyro import (  # noqa: F401
-    carry_rotation,
-    cofactor,
-    block_rotvecs,
-    known_rotation_residuals,
-    vertical_turn_residuals,
-    vertical_turn_errors,
-    turn_init,
-    gyr_residuals,
-    gyro_angle_errors,
-    known_rotation_errors,
-)
-from jaxcal.multipos.observe import (  # noqa: F401
-    OBSERVABLE_TOL,
-    Observability,
-    observability,
-    check_observable,
-)
-from jaxcal.multipos.fit import (  # noqa: F401
-    MultiposConfig,
-    MultiposFit,
-    fit_prepared,
-    fit_multipos,
-    to_affine,
-)
-from jaxcal.multipos.detect import (  # noqa: F401
-    default_gyr_limit,
-    detect_and_fit,
-    fit_summary,
-    fit_multipos_recording,
-    TURN_TOL_DEG,
-    check_turns,
-)
-from jaxcal.multipos.heldout import (  # noqa: F401
-    HeldOut,
-    fold_ids,
-    leave_poses_out,
-)
-from jaxcal.multipos.timesplit import (  # noqa: F401
+from jaxcal.multipos.detect import DetectOptions, check_turns, detect_and_fit, fit_multipos_recording, fit_summary
+from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_multipos, fit_prepared, fit_prepared_jit
+from jaxcal.multipos.gyro import block_rotvecs, carry_rotation, gyro_angle_errors, known_rotation_errors, vertical_turn_errors
+from jaxcal.multipos.heldout import HeldOut, fold_ids, leave_poses_out
+from jaxcal.multipos.observe import Observability, check_observable, observability
+from jaxcal.multipos.timesplit import (
     FERRARIS_FACES,
     FERRARIS_TURNS,
     TimeSplit,
+    gyro_folds,
+    peer_sections,
+    split_samples,
     time_split,
     whole_sections,
-    peer_sections,
-    gyro_folds,
-    split_samples,
 )
+
+__all__ = [
+    # data
+    "MultiposData", "KnownRotations", "VerticalTurns", "prepare", "prepare_known", "prepare_turns",
+    "turns_from_times", "OBSERVABLE_TOL",
+    # fits and configuration
+    "MultiposConfig", "MultiposFit", "DatasheetPrior", "MPU6050_PRIOR", "fit_prepared", "fit_prepared_jit",
+    "fit_multipos", "fit_acc", "fit_acc_determined",
+    # recordings
+    "DetectOptions", "detect_and_fit", "fit_multipos_recording", "fit_summary", "check_turns",
+    # what the poses determine
+    "Observability", "observability", "check_observable",
+    # scores
+    "acc_norm_errors", "gyro_angle_errors", "known_rotation_errors", "vertical_turn_errors",
+    "block_rotvecs", "carry_rotation",
+    # held-out
+    "HeldOut", "fold_ids", "leave_poses_out",
+    "FERRARIS_FACES", "FERRARIS_TURNS", "TimeSplit", "time_split", "whole_sections", "peer_sections",
+    "gyro_folds", "split_samples",
+]

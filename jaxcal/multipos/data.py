@@ -4,6 +4,8 @@
 and the second-order Magnus block sums of every transition); :func:`prepare_known` and
 :func:`prepare_turns` do the same for sections of known rotation and for whole turns about the
 vertical. Numpy in, padded arrays out; everything downstream is pure JAX.
+:func:`calibrated_acc_sums` (block sums of the calibrated specific force) and
+:data:`OBSERVABLE_TOL` are shared by the later stages (``acc``, ``gyro``, ``fit``, ``observe``).
 """
 
 from __future__ import annotations
@@ -13,16 +15,29 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Bool, Float
+from numpy.typing import ArrayLike
 
+from jaxcal.arrays import Array
 from jaxcal.rotation import exp_so3
+from jaxcal.sensor import LinearCal
 
+__all__ = [
+    "OBSERVABLE_TOL",
+    "MultiposData",
+    "prepare",
+    "KnownRotations",
+    "prepare_known",
+    "VerticalTurns",
+    "rests_around",
+    "prepare_turns",
+    "turns_from_times",
+    "calibrated_acc_sums",
+]
 
-class InverseAffine(NamedTuple):
-    """Calibration in the applied direction ``x = A (y - b)`` (``A`` unit/LSB, ``b`` LSB)."""
-
-    A: Float[Array, "3 3"]
-    b: Float[Array, "3"]
+#: relative singular value below which a parameter combination counts as undetermined by the poses
+#: (:func:`~jaxcal.multipos.observe.check_observable`, :func:`~jaxcal.multipos.acc.fit_acc_determined`)
+OBSERVABLE_TOL = 0.02
 
 
 class MultiposData(NamedTuple):
@@ -39,14 +54,14 @@ class MultiposData(NamedTuple):
 
     pose_acc: Float[Array, "P 3"]  # mean accelerometer output per static pose
     pose_gyr: Float[Array, "P 3"]  # mean gyroscope output per static pose
-    pose_n: Float[Array, "P"]  # samples per pose
+    pose_n: Float[Array, " P"]  # samples per pose
     sy: Float[Array, "J L 3"]
     sdt: Float[Array, "J L"]
     c0: Float[Array, "J L 3"]
     p1: Float[Array, "J L 3"]
     p2: Float[Array, "J L 3"]
     sacc: Float[Array, "J L 3"]  # block sums of accelerometer output * dt (g-sensitivity)
-    seg_ok: Bool[Array, "J"]  # False: transition unusable (saturated gyro)
+    seg_ok: Bool[Array, " J"]  # False: transition unusable (saturated gyro)
 
 
 def _segment_sums(
@@ -87,12 +102,12 @@ def prepare(
     t: np.ndarray,
     acc: np.ndarray,
     gyr: np.ndarray,
-    intervals: np.ndarray,
+    intervals: ArrayLike,
     *,
     gyr_limit: float | None = None,
     midpoint: bool = True,
     block: int = 8,
-    spans: np.ndarray | None = None,
+    spans: ArrayLike | None = None,
 ) -> MultiposData:
     """Pose means and padded transition segments (numpy; shapes depend on the data).
 
@@ -142,15 +157,15 @@ class KnownRotations(NamedTuple):
     p2: Float[Array, "K L 3"]
     sacc: Float[Array, "K L 3"]
     R: Float[Array, "K 3 3"]
-    seg_ok: Bool[Array, "K"]
+    seg_ok: Bool[Array, " K"]
 
 
 def prepare_known(
     t: np.ndarray,
     acc: np.ndarray,
     gyr: np.ndarray,
-    spans: np.ndarray,
-    rotvecs: np.ndarray,
+    spans: ArrayLike,
+    rotvecs: ArrayLike,
     *,
     gyr_limit: float | None = None,
     midpoint: bool = True,
@@ -158,7 +173,17 @@ def prepare_known(
 ) -> KnownRotations:
     """Known-rotation sections (numpy). ``spans`` (K, 2): first and last sample ``[a, b]`` of each
     section; ``rotvecs`` (K, 3): its known body rotation vector (rad; ``exp_so3`` of it is ``R``);
-    a closed turn of any whole number of revolutions is ``0`` (or ``2 pi`` times the axis)."""
+    a closed turn of any whole number of revolutions is ``0`` (or ``2 pi`` times the axis).
+
+    Args:
+        t: (N,) times (s), increasing.
+        acc, gyr: (N, 3) outputs (LSB or physical).
+        spans: (K, 2) first and last sample ``[a, b]`` of each section.
+        rotvecs: (K, 3) known body rotation vector of each section (rad).
+        gyr_limit: if given, a section with any ``|gyr| >= gyr_limit`` is marked unusable.
+        midpoint: midpoint rates (else the left sample).
+        block: samples per integration block.
+    """
     t = np.asarray(t, np.float64)
     acc = np.asarray(acc, np.float64)
     gyr = np.asarray(gyr, np.float64)
@@ -183,16 +208,23 @@ class VerticalTurns(NamedTuple):
     False if the gyro saturated."""
 
     y_int: Float[Array, "K 3"]
-    dt_sum: Float[Array, "K"]
+    dt_sum: Float[Array, " K"]
     rest_acc: Float[Array, "K 3"]
-    angle: Float[Array, "K"]
-    seg_ok: Bool[Array, "K"]
+    angle: Float[Array, " K"]
+    seg_ok: Bool[Array, " K"]
 
 
-def rests_around(spans: np.ndarray, n: int, gap: int, n_samples: int | None = None) -> list[list[tuple[int, int]]]:
+def rests_around(spans: ArrayLike, n: int, gap: int, n_samples: int | None = None) -> list[list[tuple[int, int]]]:
     """Rest windows next to each span ``[a, b]``: ``n`` samples ending ``gap`` before ``a`` and ``n``
     samples starting ``gap`` after ``b`` (clipped to the recording's ``n_samples`` when given), as
-    ``[start, stop)`` pairs."""
+    ``[start, stop)`` pairs.
+
+    Args:
+        spans: (K, 2) ``[a, b]`` of each span.
+        n: samples per rest window.
+        gap: samples between a span and its rest windows.
+        n_samples: the recording's length, to clip to; None: no clipping at the end.
+    """
     end = np.iinfo(np.int64).max if n_samples is None else n_samples
     out = []
     for a, b in np.asarray(spans, np.int64).reshape(-1, 2):
@@ -205,7 +237,7 @@ def prepare_turns(
     t: np.ndarray,
     acc: np.ndarray,
     gyr: np.ndarray,
-    spans: np.ndarray,
+    spans: ArrayLike,
     rests: list,
     *,
     revolutions: Any = 1,
@@ -215,7 +247,17 @@ def prepare_turns(
     """Vertical turns (numpy). ``spans`` (K, 2): first and last sample ``[a, b]`` of each turn;
     ``rests``: per turn, a list of static ``[start, stop)`` windows whose mean accelerometer output
     gives the turning axis (e.g. :func:`rests_around`); ``revolutions``: whole turns per section
-    (scalar or (K,)). Raises if a turn has no rest samples."""
+    (scalar or (K,)). Raises if a turn has no rest samples.
+
+    Args:
+        t: (N,) times (s), increasing.
+        acc, gyr: (N, 3) outputs (LSB or physical).
+        spans: (K, 2) first and last sample ``[a, b]`` of each turn.
+        rests: per turn, a list of static ``[start, stop)`` windows giving its axis.
+        revolutions: whole turns per section, scalar or (K,).
+        gyr_limit: if given, a turn with any ``|gyr| >= gyr_limit`` is marked unusable.
+        midpoint: midpoint rates (else the left sample).
+    """
     t = np.asarray(t, np.float64)
     acc = np.asarray(acc, np.float64)
     gyr = np.asarray(gyr, np.float64)
@@ -237,7 +279,15 @@ def prepare_turns(
 def turns_from_times(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, times: Any, rest: float = 1.0,
                      gyr_limit: float | None = None) -> VerticalTurns:
     """:class:`VerticalTurns` from turn start/end times ``times`` (K, 2) in seconds; each turn's axis
-    is read from ``rest`` seconds of rest just before and just after it (5 samples away)."""
+    is read from ``rest`` seconds of rest just before and just after it (5 samples away).
+
+    Args:
+        t: (N,) times (s), increasing.
+        acc, gyr: (N, 3) outputs (LSB or physical).
+        times: (K, 2) start and end of each turn (s).
+        rest: seconds of rest read on each side of a turn.
+        gyr_limit: if given, a turn with any ``|gyr| >= gyr_limit`` is marked unusable.
+    """
     t = np.asarray(t, np.float64)
     tt = np.asarray(times, np.float64).reshape(-1, 2)
     if np.any(tt[:, 1] <= tt[:, 0]) or tt.min() < t[0] or tt.max() > t[-1]:
@@ -245,3 +295,15 @@ def turns_from_times(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, times: Any
     spans = np.stack([np.searchsorted(t, tt[:, 0]), np.minimum(np.searchsorted(t, tt[:, 1]), len(t) - 1)], 1)
     n = max(1, int(round(rest / float(np.median(np.diff(t))))))
     return prepare_turns(t, acc, gyr, spans, rests_around(spans, n, 5, len(t)), gyr_limit=gyr_limit)
+
+
+def calibrated_acc_sums(acc: LinearCal, d: MultiposData | KnownRotations) -> Float[Array, "J L 3"]:
+    """Block sums of the calibrated specific force ``sum A (y_acc - b) dt`` of every transition (or
+    known-rotation section) from its raw sums ``sacc`` and ``sdt``: the g-sensitivity term of the
+    gyro model ``w = G (y - b) - G_s f`` (see :class:`MultiposData`). Pure JAX.
+
+    Args:
+        acc: accelerometer calibration (applied form).
+        d: block sums of the transitions (:class:`MultiposData`) or sections (:class:`KnownRotations`).
+    """
+    return (d.sacc - acc.b * d.sdt[..., None]) @ acc.A.T

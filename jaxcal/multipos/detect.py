@@ -1,27 +1,84 @@
 """Multipos on a whole recording: detect the static poses (imu_tk's threshold scan), fit, check
-what the poses determine, summarise the fit (``jaxcal calibrate --method multipos``)."""
+what the poses determine, summarise the fit (``jaxcal calibrate --method multipos``).
+
+:class:`DetectOptions` holds the detection options and their defaults (one place);
+:func:`detect_and_fit` works on arrays, :func:`fit_multipos_recording` on a
+:class:`~jaxcal.recording.Recording` and returns :class:`~jaxcal.sensor.LinearCal` calibrations.
+"""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
-from jaxcal.multipos.data import MultiposData, VerticalTurns, prepare, turns_from_times
-from jaxcal.multipos.fit import MultiposConfig, MultiposFit, _fit_numpy, to_affine
+from jaxcal.multipos.data import OBSERVABLE_TOL, MultiposData, VerticalTurns, prepare, turns_from_times
+from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_prepared_numpy
 from jaxcal.multipos.gyro import gyro_angle_errors, vertical_turn_errors
-from jaxcal.multipos.observe import OBSERVABLE_TOL, Observability, check_observable, observability
-from jaxcal.static import detect_static
+from jaxcal.multipos.observe import Observability, check_observable, observability
+from jaxcal.sensor import LinearCal
+from jaxcal.static import StaticDetection, detect_static
+
+if TYPE_CHECKING:
+    from jaxcal.recording import Recording
+
+__all__ = [
+    "default_gyr_limit",
+    "DetectOptions",
+    "detect_and_fit",
+    "TURN_TOL_DEG",
+    "check_turns",
+    "fit_summary",
+    "fit_multipos_recording",
+]
 
 
 def default_gyr_limit(gyr: np.ndarray, unit: str) -> float | None:
-    """Saturation limit for raw counts: 32767 for signed, 65535 for unsigned 16-bit data."""
+    """Saturation limit for raw counts: 32767 for signed, 65535 for unsigned 16-bit data.
+
+    Args:
+        gyr: (N, 3) gyroscope outputs (only their sign is read).
+        unit: the gyroscope's unit; only ``"LSB"`` has a limit.
+    """
     if unit != "LSB":
         return None
     return 32767.0 if np.min(gyr) < 0 else 65535.0
+
+
+class DetectOptions(NamedTuple):
+    """How :func:`detect_and_fit` finds the static poses and prepares the transitions (static:
+    Python values, numpy side). The defaults are imu_tk's; :meth:`for_recording` gives those of
+    :func:`fit_multipos_recording`.
+
+    Args:
+        init_duration: seconds of initial rest that set the variance threshold; ``None``: the
+            first 10 % of the recording, capped at 30 s (a safe guess only if the user rested
+            there; pass it).
+        ks: threshold multipliers scanned; the one with the smallest mean squared ``|f| - 1``
+            residual (at least 9 poses) is kept.
+        window: moving-variance window (s).
+        min_duration: shortest static interval (s).
+        gyr_limit: gyro saturation limit (a transition reaching it is left out), or ``None``.
+        gyr_gate: also require a quiet gyro at rest (:func:`~jaxcal.static.detect_static`), which
+            keeps turns about the vertical out of the poses; off in imu_tk's detector.
+    """
+
+    init_duration: float | None = None
+    ks: tuple[float, ...] = tuple(float(k) for k in range(1, 11))
+    window: float = 1.0
+    min_duration: float = 1.0
+    gyr_limit: float | None = None
+    gyr_gate: bool = False
+
+    @classmethod
+    def for_recording(cls, rec: Recording) -> DetectOptions:
+        """The defaults of :func:`fit_multipos_recording`: the saturation limit of the recording's
+        gyro units (:func:`default_gyr_limit`) and the gyro gate on (a turn about the vertical must
+        not pass for a pose). Change fields with ``._replace``."""
+        return cls(gyr_limit=default_gyr_limit(np.asarray(rec.gyr), rec.gyr_unit), gyr_gate=True)
 
 
 def detect_and_fit(
@@ -30,41 +87,40 @@ def detect_and_fit(
     gyr: np.ndarray,
     config: MultiposConfig = MultiposConfig(),
     *,
-    init_duration: float | None = None,
-    ks: tuple[float, ...] = tuple(range(1, 11)),
-    window: float = 1.0,
-    min_duration: float = 1.0,
-    gyr_limit: float | None = None,
+    detect: DetectOptions = DetectOptions(),
     turn_times: Any = None,
-    gyr_gate: bool = False,
     check: bool = True,
 ) -> tuple[MultiposFit, np.ndarray, float]:
     """imu_tk's procedure: for each threshold multiplier ``k`` detect the static intervals and
     fit the accelerometer; keep the ``k`` with the smallest mean squared ``|f| - 1`` residual
-    (at least 9 poses), then fit the gyroscope. Returns ``(fit, intervals, k)``. ``turn_times``
-    (K, 2) s, optional: whole turns about the vertical (:func:`turns_from_times`), unlabelled.
-    ``gyr_gate``: also require a quiet gyro at rest (:func:`~jaxcal.static.detect_static`), which
-    keeps turns about the vertical out of the poses; off by default (imu_tk's detector).
-    ``check``: raise ``ValueError`` when the poses do not determine the fit (:func:`check_observable`).
+    (at least 9 poses), then fit the gyroscope. Returns ``(fit, intervals, k)``.
 
-    ``init_duration`` defaults to the first run of low acceleration variance: the first 10 % of
-    the recording, capped at 30 s, is a safe guess only if the user rested there; pass it.
+    Args:
+        t: (N,) times (s).
+        acc, gyr: (N, 3) outputs.
+        config: :class:`~jaxcal.multipos.fit.MultiposConfig`.
+        detect: :class:`DetectOptions` (detection and saturation).
+        turn_times: optional (K, 2) start/end times (s) of whole turns about the vertical
+            (:func:`~jaxcal.multipos.data.turns_from_times`), unlabelled.
+        check: raise ``ValueError`` when the poses do not determine the fit (:func:`check_observable`).
     """
-    fit, det, data, turns = _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gyr_limit, turn_times, gyr_gate)
+    fit, det, data, turns = _detect_fit(t, acc, gyr, config, detect, turn_times)
     if check:
-        check_observable(observability(data, fit, turns=turns))
+        check_observable(observability(data, fit.acc, fit.gyr, turns=turns))
     return fit, det.intervals, det.k
 
 
-def _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gyr_limit, turn_times, gyr_gate):
+def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: MultiposConfig, detect: DetectOptions,
+                turn_times: Any) -> tuple[MultiposFit, StaticDetection, MultiposData, VerticalTurns | None]:
     """:func:`detect_and_fit`'s work: ``(fit, detection, prepared data, turns)``."""
     t = np.asarray(t, np.float64)
+    init_duration = detect.init_duration
     if init_duration is None:
         init_duration = min(30.0, 0.1 * (t[-1] - t[0]))
     best = None
-    for k in ks:
-        det = detect_static(t, acc, k=k, init_duration=init_duration, window=window, min_duration=min_duration,
-                            gyr=gyr if gyr_gate else None)
+    for k in detect.ks:
+        det = detect_static(t, acc, k=k, init_duration=init_duration, window=detect.window,
+                            min_duration=detect.min_duration, gyr=gyr if detect.gyr_gate else None)
         if len(det.intervals) < 9:
             continue
         with jax.enable_x64(True):
@@ -76,9 +132,9 @@ def _detect_fit(t, acc, gyr, config, init_duration, ks, window, min_duration, gy
     if best is None:
         raise ValueError("fewer than 9 static poses found for every threshold; record more poses")
     det = best[1]
-    turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=gyr_limit)
-    data = prepare(t, acc, gyr, det.intervals, gyr_limit=gyr_limit, midpoint=config.midpoint)
-    return _fit_numpy(data, config, turns), det, data, turns
+    turns = None if turn_times is None else turns_from_times(t, acc, gyr, turn_times, gyr_limit=detect.gyr_limit)
+    data = prepare(t, acc, gyr, det.intervals, gyr_limit=detect.gyr_limit, midpoint=config.midpoint)
+    return fit_prepared_numpy(data, config, turns=turns), det, data, turns
 
 
 TURN_TOL_DEG = 20.0  # a real whole turn closes within a degree or two after the fit
@@ -89,9 +145,15 @@ def check_turns(fit: MultiposFit, turns: VerticalTurns, times: Any) -> None:
     vertical must integrate (with the calibrated gyroscope) to within :data:`TURN_TOL_DEG` of one.
     A window that is not a whole turn (wrong times, e.g. another session's) cannot be fitted to
     one, and would only bend the gyroscope calibration towards it. Raises ``ValueError`` naming the
-    first such turn, its times and the angle the gyroscope measures there."""
+    first such turn, its times and the angle the gyroscope measures there.
+
+    Args:
+        fit: the fit that used the turns.
+        turns: the turns (:func:`~jaxcal.multipos.turns_from_times`).
+        times: (K, 2) start and end of each turn (s), as the user gave them (for the message).
+    """
     with jax.enable_x64(True):
-        tj = jax.tree_util.tree_map(jnp.asarray, turns)
+        tj, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (turns, fit))
         err = np.degrees(np.asarray(vertical_turn_errors(fit.gyr, fit.gsens, fit.acc, tj)))
         rate_int = np.asarray(tj.y_int - fit.gyr.b * tj.dt_sum[:, None]) @ np.asarray(fit.gyr.A).T
     angle = np.degrees(np.linalg.norm(rate_int, axis=1))
@@ -111,14 +173,21 @@ def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | Non
     worst vertical-turn error (deg, with ``turns``), and the smallest relative singular values of
     :func:`observability` (near 0: a combination the poses barely determine). In-sample figures
     are optimistic; ``leave_poses_out`` gives held-out ones. ``obs``: :func:`observability` of the
-    same fit, if already computed."""
+    same fit, if already computed.
+
+    Args:
+        data: the fit's prepared poses and transitions.
+        fit: the fit.
+        turns: the vertical turns the fit used; None: none.
+        obs: :func:`observability` of the same fit; None: computed here.
+    """
+    obs = observability(data, fit.acc, fit.gyr, turns=turns) if obs is None else obs
     with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
+        d, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (data, fit))
         ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
         eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
         et = None if turns is None else np.asarray(vertical_turn_errors(
             fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
-    obs = observability(data, fit, turns=turns) if obs is None else obs
     out = {"n_poses": int(len(ea)), "n_transitions": int(len(eg)), "acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),
            "gyr_median_deg": float(np.degrees(np.median(eg))) if len(eg) else None,
            "acc_sv_min": float(obs.acc_sv.min()), "gyr_sv_min": float(obs.gyr_sv.min())}
@@ -127,42 +196,55 @@ def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | Non
     return out
 
 
-def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), *, summary: bool = False,
-                           partial: bool = False, **kwargs) -> tuple[Any, Any] | tuple[Any, Any, dict]:
-    """Calibrate a :class:`~jaxcal.recording.Recording` (or recording dict) by multi-position
-    self-calibration. Needs ``acc`` and ``gyr``; no labels, no datasheet values.
+def fit_multipos_recording(
+    rec: Recording,
+    config: MultiposConfig = MultiposConfig(),
+    *,
+    detect: DetectOptions | None = None,
+    turn_times: Any = None,
+    summary: bool = False,
+    partial: bool = False,
+    check: bool = True,
+) -> tuple[LinearCal, LinearCal | None] | tuple[LinearCal, LinearCal | None, dict]:
+    """Calibrate a :class:`~jaxcal.recording.Recording` by multi-position self-calibration. Needs
+    ``acc`` and ``gyr``; no labels, no datasheet values.
 
-    Returns the forward models ``(acc_model, gyr_model)`` as :class:`~jaxcal.sensor.Affine`
-    (``y = S x + b``, ``x`` in g and rad/s, ``y`` in the recording's units). The g-sensitivity
-    option is not representable as an ``Affine`` and is off here. ``kwargs`` go to
-    :func:`detect_and_fit` (here ``gyr_gate`` defaults to True; ``turn_times`` adds vertical turns).
-    ``summary``: also return :func:`fit_summary` of the fit (in-sample quality, observability).
+    Returns the applied calibrations ``(acc_cal, gyr_cal)`` as :class:`~jaxcal.sensor.LinearCal`
+    (``x = A (y - b)``, ``x`` in g and rad/s, ``y`` in the recording's units; numpy arrays;
+    ``.to_forward()`` gives ``y = S x + b``). The g-sensitivity option is not representable as a
+    ``LinearCal`` and is refused here.
 
     When the poses do not determine every combination (:func:`check_observable`) this raises,
     unless ``partial``: then, for a recording already in g and rad/s, the accelerometer is fitted
     by :func:`fit_acc_determined` (only the determined combinations move) and an undetermined
-    gyroscope is left as recorded (its model is ``None``); the summary's ``partial`` says which.
-    Turns (``turn_times``) that the calibrated gyroscope does not measure as whole turns raise
-    (:func:`check_turns`), as the observability check does, unless ``check=False``.
+    gyroscope is left as recorded (its calibration is ``None``); the summary's ``partial`` says
+    which. Turns (``turn_times``) that the calibrated gyroscope does not measure as whole turns
+    raise (:func:`check_turns`), as the observability check does, unless ``check=False``.
+
+    Args:
+        rec: the recording (``t``, ``acc``, ``gyr``, ``acc_unit``, ``gyr_unit`` are read).
+        config: :class:`~jaxcal.multipos.fit.MultiposConfig` (``g_sensitivity`` must be off).
+        detect: :class:`DetectOptions`; ``None``: :meth:`DetectOptions.for_recording` (gyro gate
+            on, saturation limit from the units).
+        turn_times: optional (K, 2) start/end times (s) of whole turns about the vertical.
+        summary: also return :func:`fit_summary` of the fit (in-sample quality, observability).
+        partial: fit only what the poses determine instead of refusing (recording in g, rad/s).
+        check: run the observability and turn checks.
     """
-    get = (lambda k: rec.get(k)) if isinstance(rec, dict) else (lambda k: getattr(rec, k, None))
-    t, acc, gyr = get("t"), get("acc"), get("gyr")
+    t, acc, gyr = rec.t, rec.acc, rec.gyr
     if acc is None or gyr is None:
         raise ValueError("multipos needs both 'acc' and 'gyr'")
     if config.g_sensitivity:
         raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
-    units = (get("acc_unit") or "LSB", get("gyr_unit") or "LSB")
+    units = (rec.acc_unit, rec.gyr_unit)
     if partial and units != ("g", "rad/s"):
         raise ValueError(f"partial keeps what the poses do not determine as recorded, which needs a recording in "
                          f"g and rad/s; this one is in {units[0]} and {units[1]}")
-    kwargs.setdefault("gyr_limit", default_gyr_limit(np.asarray(gyr), units[1]))
-    kwargs.setdefault("gyr_gate", True)  # a turn about the vertical must not pass for a pose
-    check = kwargs.pop("check", True)
-    defaults = {k: v for k, v in detect_and_fit.__kwdefaults__.items() if k != "check"}
-    fit, _, data, turns = _detect_fit(t, acc, gyr, config, **(defaults | kwargs))
+    detect = DetectOptions.for_recording(rec) if detect is None else detect
+    fit, _, data, turns = _detect_fit(t, acc, gyr, config, detect, turn_times)
     if turns is not None and check:
-        check_turns(fit, turns, kwargs["turn_times"])
-    obs = observability(data, fit, turns=turns) if check or summary or partial else None
+        check_turns(fit, turns, turn_times)
+    obs = observability(data, fit.acc, fit.gyr, turns=turns) if check or summary or partial else None
     kept = {}
     if partial:
         if (obs.acc_sv < OBSERVABLE_TOL).any():
@@ -170,18 +252,18 @@ def fit_multipos_recording(rec: Any, config: MultiposConfig = MultiposConfig(), 
             with jax.enable_x64(True):
                 n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
             kept["acc"] = f"{9 - n} of 9 combinations left as recorded, {n} fitted"
-            fit = _fit_numpy(data, config, turns)
-            obs = observability(data, fit, turns=turns)  # the gyro design, linearised at the new gravity directions
+            fit = fit_prepared_numpy(data, config, turns=turns)
+            obs = observability(data, fit.acc, fit.gyr, turns=turns)  # the gyro design, linearised at the new gravity directions
         if (obs.gyr_sv < OBSERVABLE_TOL).any():
             config = config._replace(gyr_fit="none")
             kept["gyr"] = "left as recorded (the rotations determine too little)"
-            fit = _fit_numpy(data, config, turns)
+            fit = fit_prepared_numpy(data, config, turns=turns)
     elif check:
         try:
             check_observable(obs)
         except ValueError as e:
             raise ValueError(f"{e}; or calibrate only what the poses determine (partial=True, --partial)") from None
-    models = (to_affine(fit.acc), None if config.gyr_fit == "none" else to_affine(fit.gyr))
+    cals = (fit.acc, None if config.gyr_fit == "none" else fit.gyr)
     if not summary:
-        return models
-    return (*models, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))
+        return cals
+    return (*cals, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))

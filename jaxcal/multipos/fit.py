@@ -1,4 +1,9 @@
-"""The multipos fit on prepared data: accelerometer, then gyroscope (pure, vmappable over weights)."""
+"""The multipos fit on prepared data: accelerometer, then gyroscope (pure, vmappable over weights).
+
+:func:`fit_prepared` is the pure JAX fit (``config`` static, everything else traced);
+:data:`fit_prepared_jit` its jitted form; :func:`fit_prepared_numpy` runs it in float64 on numpy
+data; :func:`fit_multipos` prepares a recording's arrays first.
+"""
 
 from __future__ import annotations
 
@@ -8,24 +13,44 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
 from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
-from jaxcal.multipos.data import InverseAffine, KnownRotations, MultiposData, VerticalTurns, prepare
-from jaxcal.multipos.gyro import _calibrated_acc_sums, gyr_residuals, turn_init
-from jaxcal.sensor import Affine
+from jaxcal.multipos.data import KnownRotations, MultiposData, VerticalTurns, calibrated_acc_sums, prepare
+from jaxcal.multipos.gyro import GyroArgs, gyr_residuals, turn_init
+from jaxcal.sensor import LinearCal
+
+__all__ = [
+    "MultiposConfig",
+    "MultiposFit",
+    "fit_prepared",
+    "fit_prepared_jit",
+    "fit_prepared_numpy",
+    "fit_multipos",
+]
 
 
 class MultiposConfig(NamedTuple):
-    """Options. ``acc_model``: ``"9"`` or ``"12"``. ``gyro_bias``: ``"static"`` (mean over the
-    static intervals in use) or ``"init"`` (the first interval only, as imu_tk). ``g_sensitivity``:
-    also fit ``G_s``. ``midpoint``: midpoint rates (else the left sample, zero-order hold).
-    ``max_steps``: LM iteration cap. ``prior``: optional :class:`DatasheetPrior` (MAP on scales
-    and cross-axis terms; ``None``, the default, uses the data alone). ``acc_ridge``: weak ridge on
-    the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns it off). ``acc_fit``:
-    ``"full"`` (:func:`fit_acc`) or ``"determined"`` (:func:`fit_acc_determined`: move the
-    recording's own units only along the combinations the poses determine; 9-parameter model).
-    ``gyr_fit``: ``"full"`` or ``"none"`` (the gyroscope stays as recorded: ``G = I``, ``b = 0``)."""
+    """Options of the multipos fit. Static: every field is a Python value, and
+    :data:`fit_prepared_jit` takes the config as a static argument (a new config recompiles).
+
+    Args:
+        acc_model: ``"9"`` or ``"12"``.
+        gyro_bias: ``"static"`` (mean over the static intervals in use) or ``"init"`` (the first
+            interval only, as imu_tk).
+        g_sensitivity: also fit ``G_s``.
+        midpoint: midpoint rates (else the left sample, zero-order hold).
+        max_steps: LM iteration cap.
+        prior: optional :class:`~jaxcal.multipos.acc.DatasheetPrior` (MAP on scales and
+            cross-axis terms; ``None``, the default, uses the data alone).
+        acc_ridge: weak ridge on the accelerometer's cross-axis terms (see :func:`fit_acc`; 0 turns
+            it off).
+        acc_fit: ``"full"`` (:func:`fit_acc`) or ``"determined"`` (:func:`fit_acc_determined`: move
+            the recording's own units only along the combinations the poses determine; 9-parameter
+            model).
+        gyr_fit: ``"full"`` or ``"none"`` (the gyroscope stays as recorded: ``G = I``, ``b = 0``).
+    """
 
     acc_model: str = "9"
     gyro_bias: str = "static"
@@ -39,11 +64,12 @@ class MultiposConfig(NamedTuple):
 
 
 class MultiposFit(NamedTuple):
-    """Result: ``acc``/``gyr`` calibrations (applied direction), ``gsens`` (3, 3) ((rad/s)/g, zero
-    unless fitted), and the final residual norms of the two least-squares problems."""
+    """Result: ``acc``/``gyr`` calibrations (applied direction, :class:`~jaxcal.sensor.LinearCal`),
+    ``gsens`` (3, 3) ((rad/s)/g, zero unless fitted), and the final residual norms of the two
+    least-squares problems."""
 
-    acc: InverseAffine
-    gyr: InverseAffine
+    acc: LinearCal
+    gyr: LinearCal
     gsens: Float[Array, "3 3"]
     acc_cost: Float[Array, ""]
     gyr_cost: Float[Array, ""]
@@ -52,12 +78,13 @@ class MultiposFit(NamedTuple):
 def fit_prepared(
     data: MultiposData,
     config: MultiposConfig = MultiposConfig(),
-    acc_w: Float[Array, "P"] | None = None,
-    gyr_w: Float[Array, "J"] | None = None,
+    *,
+    acc_w: Float[Array, " P"] | None = None,
+    gyr_w: Float[Array, " J"] | None = None,
     known: KnownRotations | None = None,
-    known_w: Float[Array, "K"] | None = None,
+    known_w: Float[Array, " K"] | None = None,
     turns: VerticalTurns | None = None,
-    turns_w: Float[Array, "T"] | None = None,
+    turns_w: Float[Array, " T"] | None = None,
 ) -> MultiposFit:
     """Accelerometer then gyroscope fit on prepared data (pure; vmappable over the weights).
 
@@ -71,6 +98,16 @@ def fit_prepared(
     turns the gyro fit also starts from :func:`turn_init` when that beats the scalar grid start.
     ``config.prior``: optional datasheet prior (MAP). Call under ``jax.enable_x64(True)`` for raw
     counts (as :func:`fit_multipos` does).
+
+    Args:
+        data: prepared poses and transitions (:func:`prepare`).
+        config: :class:`MultiposConfig` (static).
+        acc_w: (P,) weight per pose (default ones).
+        gyr_w: (J,) weight per transition (default ones).
+        known: optional :class:`KnownRotations`.
+        known_w: (K,) weights of the known rotations (default ones).
+        turns: optional :class:`VerticalTurns`.
+        turns_w: (T,) weights of the turns (default ones).
     """
     P = data.pose_acc.shape[0]
     dtype = data.pose_acc.dtype
@@ -87,7 +124,7 @@ def fit_prepared(
         acc, acc_cost = fit_acc(data.pose_acc, acc_w, config.acc_model, config.max_steps, config.prior, config.acc_ridge)
     if config.gyr_fit == "none":
         zero = jnp.zeros((3, 3), dtype)
-        return MultiposFit(acc, InverseAffine(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)), zero, acc_cost, jnp.asarray(0.0, dtype))
+        return MultiposFit(acc, LinearCal(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)), zero, acc_cost, jnp.asarray(0.0, dtype))
     f = (data.pose_acc - acc.b) @ acc.A.T
     u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
     # gyro bias from the static intervals (of the poses in use)
@@ -96,24 +133,20 @@ def fit_prepared(
     else:
         wn = acc_w * data.pose_n
         bg = jnp.sum(wn[:, None] * data.pose_gyr, 0) / jnp.sum(wn)
-    fsum = _calibrated_acc_sums(acc, data)
+    # the scale (1 here) is set per grid point below, then to the best one
+    args = GyroArgs(data, bg, jnp.asarray(1.0, dtype), config.g_sensitivity, calibrated_acc_sums(acc, data), u, gyr_w)
     if known is not None:
         known_w = jnp.ones(known.R.shape[0], dtype) if known_w is None else known_w
-        kfsum = _calibrated_acc_sums(acc, known)
-        extra = (known, known_w, kfsum)
-    else:
-        extra = (None, None, None)
+        args = args._replace(known=known, known_w=known_w, known_fsum=calibrated_acc_sums(acc, known))
     if turns is not None:
         turns_w = jnp.ones(turns.angle.shape[0], dtype) if turns_w is None else turns_w
-        textra = (turns, turns_w, acc)
-    else:
-        textra = (None, None, None)
+        args = args._replace(turns=turns, turns_w=turns_w, acc=acc)
     # scale initialisation: grid over G = s I, both signs (4 per decade)
     grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
     zero = jnp.zeros(18 if config.g_sensitivity else 9, dtype)
 
-    def cost_at(s, th):
-        return jnp.sum(gyr_residuals(th, (data, bg, s, config.g_sensitivity, fsum, u, gyr_w, *extra, None, *textra)) ** 2)
+    def cost_at(s, th):  # the data rows alone (no prior)
+        return jnp.sum(gyr_residuals(th, args._replace(scale=s)) ** 2)
 
     costs = jnp.nan_to_num(jax.vmap(lambda s: cost_at(s, zero))(grid), nan=jnp.inf)
     s0 = grid[jnp.argmin(costs)]
@@ -123,13 +156,17 @@ def fit_prepared(
         th_c = zero.at[:9].set((gc / s0 - jnp.eye(3, dtype=dtype)).ravel())
         c_c = jnp.nan_to_num(cost_at(s0, th_c), nan=jnp.inf)
         theta0 = jnp.where(c_c < jnp.min(costs), th_c, zero)
-    args = (data, bg, s0, config.g_sensitivity, fsum, u, gyr_w, *extra, config.prior, *textra)
+    args = args._replace(scale=s0, prior=config.prior)
     solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
     sol = optx.least_squares(gyr_residuals, solver, theta0, args=args, max_steps=config.max_steps, throw=False)
     g = s0 * (jnp.eye(3, dtype=dtype) + sol.value[:9].reshape(3, 3))
     gs = sol.value[9:18].reshape(3, 3) if config.g_sensitivity else jnp.zeros((3, 3), dtype)
-    gyr_cost = jnp.sum(gyr_residuals(sol.value, args[:10] + (None,) + args[11:]) ** 2)
-    return MultiposFit(acc, InverseAffine(g, bg), gs, acc_cost, gyr_cost)
+    gyr_cost = jnp.sum(gyr_residuals(sol.value, args._replace(prior=None)) ** 2)
+    return MultiposFit(acc, LinearCal(g, bg), gs, acc_cost, gyr_cost)
+
+
+#: :func:`fit_prepared` jitted, ``config`` static: ``fit_prepared_jit(data, config, acc_w=..., ...)``.
+fit_prepared_jit = jax.jit(fit_prepared, static_argnums=1)
 
 
 def fit_multipos(
@@ -144,19 +181,33 @@ def fit_multipos(
     turns: VerticalTurns | None = None,
 ) -> MultiposFit:
     """:func:`prepare` + :func:`fit_prepared` in float64 (optional vertical ``turns``, see
-    :func:`prepare_turns`); returns numpy-backed arrays."""
-    return _fit_numpy(prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block), config, turns)
+    :func:`prepare_turns`); returns numpy-backed arrays.
+
+    Args:
+        t: (N,) times (s).
+        acc, gyr: (N, 3) outputs (raw counts or physical units).
+        intervals: (P, 2) static ``[start, stop)`` sample indices, in time order.
+        config: :class:`MultiposConfig`.
+        gyr_limit: saturation limit (a transition reaching it is left out), or ``None``.
+        block: samples per integration block (:func:`prepare`).
+        turns: optional :class:`VerticalTurns`.
+    """
+    data = prepare(t, acc, gyr, intervals, gyr_limit=gyr_limit, midpoint=config.midpoint, block=block)
+    return fit_prepared_numpy(data, config, turns=turns)
 
 
-def _fit_numpy(data: MultiposData, config: MultiposConfig, turns: VerticalTurns | None) -> MultiposFit:
-    """:func:`fit_prepared` (jitted, float64) on numpy-prepared data; numpy-backed result."""
+def fit_prepared_numpy(data: MultiposData, config: MultiposConfig = MultiposConfig(), *,
+                       turns: VerticalTurns | None = None) -> MultiposFit:
+    """:data:`fit_prepared_jit` in float64 on numpy-prepared data (and optional vertical ``turns``);
+    numpy-backed result.
+
+    Args:
+        data: prepared poses and transitions (numpy, :func:`prepare`).
+        config: :class:`MultiposConfig` (static: a new config recompiles).
+        turns: optional :class:`VerticalTurns` (numpy).
+    """
     with jax.enable_x64(True):
         d = jax.tree_util.tree_map(jnp.asarray, data)
         tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
-        fit = jax.jit(fit_prepared, static_argnums=1)(d, config, None, None, None, None, tv)
+        fit = fit_prepared_jit(d, config, turns=tv)
         return jax.tree_util.tree_map(np.asarray, fit)
-
-
-def to_affine(cal: InverseAffine) -> Affine:
-    """The forward model ``y = S x + b`` (``S = A^-1``) of an applied calibration."""
-    return Affine(S=np.linalg.inv(np.asarray(cal.A)), b=np.asarray(cal.b))

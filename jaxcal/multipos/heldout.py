@@ -13,6 +13,8 @@ from jaxcal.multipos.data import MultiposData
 from jaxcal.multipos.fit import MultiposConfig, fit_prepared
 from jaxcal.multipos.gyro import gyro_angle_errors
 
+__all__ = ["HeldOut", "fold_ids", "leave_poses_out"]
+
 
 class HeldOut(NamedTuple):
     """Leave-poses-out scores: ``acc_err`` (P,) ``| |f| - 1 |`` in g of each pose from the fold
@@ -26,7 +28,12 @@ class HeldOut(NamedTuple):
 
 
 def fold_ids(n: int, n_folds: int) -> np.ndarray:
-    """Interleaved folds: item ``i`` goes to fold ``i mod n_folds``."""
+    """Interleaved folds: item ``i`` goes to fold ``i mod n_folds``.
+
+    Args:
+        n: number of items.
+        n_folds: number of folds.
+    """
     return np.arange(n) % n_folds
 
 
@@ -37,6 +44,11 @@ def leave_poses_out(
     one ``vmap`` of :func:`fit_prepared`. ``n_folds=None`` leaves one pose (and one transition)
     out at a time. Fold ``k`` leaves out poses ``i = k mod n_folds`` from the accelerometer fit and
     transitions ``j = k mod n_folds`` from the gyroscope fit, then scores exactly those.
+
+    Args:
+        data: prepared poses and transitions (numpy or JAX arrays).
+        config: :class:`~jaxcal.multipos.fit.MultiposConfig` (static).
+        n_folds: number of interleaved folds; ``None``: one per pose.
     """
     P = data.pose_acc.shape[0]
     F = P if n_folds is None else n_folds
@@ -48,7 +60,7 @@ def leave_poses_out(
 
         @jax.jit
         def run(aw, gw):
-            fits = jax.vmap(lambda a, g: fit_prepared(d, config, a, g))(aw, gw)
+            fits = jax.vmap(lambda a, g: fit_prepared(d, config, acc_w=a, gyr_w=g))(aw, gw)
             ea = jax.vmap(lambda f: acc_norm_errors(f.acc, d.pose_acc))(fits)
             eg = jax.vmap(lambda f: gyro_angle_errors(f.gyr, f.gsens, f.acc, d))(fits)
             return ea, eg

@@ -6,21 +6,17 @@ leaves a combination below :data:`OBSERVABLE_TOL`, saying what to record.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcal.multipos.data import MultiposData, VerticalTurns
+from jaxcal.multipos.data import OBSERVABLE_TOL, MultiposData, VerticalTurns
 from jaxcal.rotation import hat
+from jaxcal.sensor import LinearCal
 
-if TYPE_CHECKING:
-    from jaxcal.multipos.fit import MultiposFit
-
-
-#: relative singular value below which a parameter combination counts as undetermined by the poses
-OBSERVABLE_TOL = 0.02
+__all__ = ["Observability", "observability", "check_observable"]
 
 
 class Observability(NamedTuple):
@@ -38,13 +34,23 @@ class Observability(NamedTuple):
     spread_deg: float
 
 
-def observability(data: MultiposData, fit: MultiposFit, acc_w: np.ndarray | None = None, gyr_w: np.ndarray | None = None,
-                  turns: VerticalTurns | None = None) -> Observability:
-    """:class:`Observability` of ``fit`` on ``data`` (weights as in :func:`fit_prepared`; a zero
-    leaves a pose or transition out). A relative singular value near 0 is a parameter combination
-    the recording does not determine: the fit put it wherever the start or the ridge left it."""
-    a, b = np.asarray(fit.acc.A), np.asarray(fit.acc.b)
-    g, bg = np.asarray(fit.gyr.A), np.asarray(fit.gyr.b)
+def observability(data: MultiposData, acc: LinearCal, gyr: LinearCal, *, acc_w: np.ndarray | None = None,
+                  gyr_w: np.ndarray | None = None, turns: VerticalTurns | None = None) -> Observability:
+    """:class:`Observability` of the calibrations ``acc`` and ``gyr`` (e.g. a fit's) on ``data``
+    (weights as in :func:`~jaxcal.multipos.fit.fit_prepared`; a zero leaves a pose or transition
+    out). A relative singular value near 0 is a parameter combination the recording does not
+    determine: the fit put it wherever the start or the ridge left it.
+
+    Args:
+        data: prepared poses and transitions.
+        acc: accelerometer calibration (the gravity directions are read through it).
+        gyr: gyroscope calibration (the point the gyro design is linearised at).
+        acc_w: (P,) weight per pose (default ones).
+        gyr_w: (J,) weight per transition (default ones).
+        turns: optional :class:`~jaxcal.multipos.data.VerticalTurns` (their rows join the gyro design).
+    """
+    a, b = np.asarray(acc.A), np.asarray(acc.b)
+    g, bg = np.asarray(gyr.A), np.asarray(gyr.b)
     P = len(data.pose_acc)
     aw = np.ones(P) if acc_w is None else np.asarray(acc_w)
     gw = (np.ones(P - 1) if gyr_w is None else np.asarray(gyr_w)) * np.asarray(data.seg_ok)
@@ -75,7 +81,12 @@ def observability(data: MultiposData, fit: MultiposFit, acc_w: np.ndarray | None
 def check_observable(obs: Observability, tol: float = OBSERVABLE_TOL) -> None:
     """Raise ``ValueError`` (saying what is missing and what to record) when a relative singular
     value of :class:`Observability` is below ``tol``: a calibration with undetermined parameters
-    would be written as if it were one."""
+    would be written as if it were one.
+
+    Args:
+        obs: :func:`observability` of the fit.
+        tol: relative singular value below which a combination counts as undetermined.
+    """
     msgs = []
     n_acc = int((obs.acc_sv < tol).sum())
     if n_acc:

@@ -17,11 +17,23 @@ whole).
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
 
 from jaxcal.multipos.data import rests_around
+
+__all__ = [
+    "FERRARIS_FACES",
+    "FERRARIS_TURNS",
+    "TimeSplit",
+    "time_split",
+    "whole_sections",
+    "peer_sections",
+    "gyro_folds",
+    "split_samples",
+]
 
 #: imucal's section names: the six faces (positive / negative axis up) and the three turns
 FERRARIS_FACES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
@@ -60,7 +72,16 @@ def time_split(bounds: dict, fold: int, faces: Sequence[str] = FERRARIS_FACES, t
     """Fold ``fold`` (0 or 1) of the time split of a Ferraris session with labelled sections
     ``bounds[name] = (start, end)`` (end exclusive). The rests next to each turn are ``rest_n``
     samples starting ``rest_gap`` samples from it (their mean gravity is the turning axis of a
-    turn about the vertical)."""
+    turn about the vertical).
+
+    Args:
+        bounds: section name -> ``(start, end)`` sample indices (end exclusive).
+        fold: 0 (fit the first halves, score the second) or 1 (the reverse).
+        faces: names of the face sections.
+        turns: names of the turn sections.
+        rest_n: samples in each rest window next to a turn.
+        rest_gap: samples between a turn and its rest windows.
+    """
     if fold not in (0, 1):
         raise ValueError(f"fold must be 0 or 1, got {fold!r}")
     missing = [n for n in (*faces, *turns) if n not in bounds]
@@ -95,7 +116,14 @@ def whole_sections(split: TimeSplit) -> TimeSplit:
 def peer_sections(split: TimeSplit, bounds: dict, faces: Sequence[str] = FERRARIS_FACES,
                   turns: Sequence[str] = FERRARIS_TURNS) -> dict:
     """The sections a labelled Ferraris tool gets on a fold: the faces' fitted halves, the whole
-    turns (it needs all three), as ``{name: (start, end)}``."""
+    turns (it needs all three), as ``{name: (start, end)}``.
+
+    Args:
+        split: the fold (:func:`time_split`).
+        bounds: section name -> ``(start, end)`` sample indices, as for :func:`time_split`.
+        faces: names of the face sections.
+        turns: names of the turn sections.
+    """
     return ({n: tuple(int(x) for x in split.fit_iv[split.statics.index(n)]) for n in faces}
             | {n: tuple(int(x) for x in bounds[n]) for n in turns})
 
@@ -104,7 +132,12 @@ def gyro_folds(across_turn: np.ndarray, n_turns: int) -> tuple[np.ndarray, np.nd
     """Gyro folds: one row per motion between poses (spans not ``across_turn``) leaving that motion
     out (every turn used), then one row per turn leaving it out (every motion used); spans across a
     turn have weight 0 everywhere. Returns ``(gyr_w, turn_w, scored)``: ``scored[i]`` is the span
-    row ``i`` leaves out (-1 for the turn rows)."""
+    row ``i`` leaves out (-1 for the turn rows).
+
+    Args:
+        across_turn: (S - 1,) bool per span, True where it holds a turn (:attr:`TimeSplit.across_turn`).
+        n_turns: number of turns.
+    """
     motions = np.flatnonzero(~np.asarray(across_turn))
     M = len(motions)
     gw = np.tile((~np.asarray(across_turn)).astype(float), (M + n_turns, 1))
@@ -117,7 +150,14 @@ def gyro_folds(across_turn: np.ndarray, n_turns: int) -> tuple[np.ndarray, np.nd
 def split_samples(split: TimeSplit, gw_row: np.ndarray, kw_row: np.ndarray, use_turns: bool = True) -> tuple[set, set, set]:
     """Sample indices a multipos fold fits on (acc and gyro), and those it is scored on:
     ``(fitted, acc_scored, gyr_scored)``. A span ``[a, b]`` uses samples ``a .. b`` (midpoint
-    rates); the rests next to a turn give its axis (their fitted halves, in ``fit_iv``)."""
+    rates); the rests next to a turn give its axis (their fitted halves, in ``fit_iv``).
+
+    Args:
+        split: the fold (:func:`time_split`).
+        gw_row: (S - 1,) one row of ``gyr_w`` (:func:`gyro_folds`).
+        kw_row: (K,) the matching row of ``turn_w``.
+        use_turns: the fold fits the turns (their samples count as fitted).
+    """
     rng = lambda a, b: set(range(int(a), int(b)))  # noqa: E731
     fitted = set().union(*(rng(a, b) for a, b in split.fit_iv))
     fitted |= set().union(set(), *(rng(a, b + 1) for (a, b), w in zip(split.spans, gw_row) if w > 0))
