@@ -25,19 +25,18 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import matplotlib
 import numpy as np
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from jaxcal.constants import ACC_RANGE_G  # noqa: E402
 from jaxcal.metrics import euclidean_error  # noqa: E402
 from jaxcal.nn import MLP  # noqa: E402
 from jaxcal.normalise import bounds_from_spec  # noqa: E402
 from jaxcal.offline import THESIS_SIZES, NNTrainSpec, linear_calibrate_subsets, nn_calibrate_subsets  # noqa: E402
 from jaxcal.simulate.dataset1 import (  # noqa: E402
-    ACC_RANGE_G,
     Dataset1Config,
     dataset1,
     nested_subset_weights,

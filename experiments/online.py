@@ -4,8 +4,8 @@ Regenerates Fig. 4.2-4.4 (dataset), 4.11-4.12 (after initial training), 4.13-4.1
 errors e_g, e_a at every iteration), 4.15-4.18 (after calibration) and Tables 4.1-4.2 over several
 seeds (one vmapped jit: each seed draws its own Dataset 2 and its own initial weights), beside the
 thesis's numbers, spec conversion and the quantisation floor. Writes ``results/online.md``,
-``results/online.json`` and ``results/figures/online_*.png`` (quick form: ``online_quick.*``); if ``experiments.online_beyond``
-exposes ``run(quick, fig_dir) -> str`` its markdown section is appended to ``results/online.md``.
+``results/online.json`` and ``results/figures/online_*.png`` (quick form: ``online_quick.*``). jaxcal's own
+streaming calibration beyond the thesis is ``experiments.online_beyond`` (``results/online_beyond.md``).
 
 Usage: ``python -m experiments.online [--quick]``.
 """
@@ -13,7 +13,6 @@ Usage: ``python -m experiments.online [--quick]``.
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import math
 import pathlib
@@ -61,7 +60,7 @@ def _run_seeds(datas, hps):
     """One jit: vmap the whole algorithm (initial training + scan) over (dataset, hparams) pairs."""
 
     def one(d, hp):
-        r = ot._run_dataset(d, hp)
+        r = ot.run_dataset(d, hp)
         ea, eg = _errors(d, r.acc_params, r.gyr_params)
         ea0, eg0 = _errors(d, r.acc_params0, r.gyr_params0)
         return r, (ea, eg, ea0, eg0)
@@ -258,7 +257,7 @@ def _sweep(data, hp_base):
     )
 
     def one(hp):
-        r = ot._run_dataset(data, hp)
+        r = ot.run_dataset(data, hp)
         ea, eg = _errors(data, r.acc_params, r.gyr_params)
         return ea.mean(), eg.mean(), r.e_a[-50:].mean(), r.e_g[-50:].mean()
 
@@ -385,14 +384,6 @@ def main(quick: bool) -> None:
     (RESULTS / f"{pre}.json").write_text(json.dumps(out, indent=1))
     md = _markdown(out)
     (RESULTS / f"{pre}.md").write_text(md)
-
-    try:
-        beyond = importlib.import_module("experiments.online_beyond")
-    except ImportError:
-        beyond = None
-    if beyond is not None and hasattr(beyond, "run"):
-        section = beyond.run(quick, FIGS)
-        (RESULTS / f"{pre}.md").write_text(md + "\n\n" + section.strip() + "\n")
 
 
 def _sweep_md(sweep, hp) -> list[str]:
@@ -551,21 +542,18 @@ def _markdown(o) -> str:
         f"![convergence](figures/{pre}_convergence.png)",
         "",
         f"![after calibration](figures/{pre}_after_calibration.png)",
+        "",
+        f"Beyond the thesis (jaxcal `online` at the quantisation floor, against the Cramer-Rao bound, under drift): "
+        f"[{pre.replace('online', 'online_beyond')}.md]({pre.replace('online', 'online_beyond')}.md), written by "
+        f"`python -m experiments.online_beyond{' --quick' if o['quick'] else ''}`.",
     ]
     return "\n".join(lines) + "\n"
 
 
 def report_only(quick: bool) -> None:
-    """Rewrite ``online[_quick].md`` from the JSON the runs wrote (``online[_quick].json`` and, if
-    present, ``online_beyond[_quick].json`` with its figures), without recomputing anything."""
+    """Rewrite ``online[_quick].md`` from the JSON the run wrote (``online[_quick].json``), without recomputing anything."""
     pre = "online_quick" if quick else "online"
-    md = _markdown(json.loads((RESULTS / f"{pre}.json").read_text()))
-    beyond = importlib.import_module("experiments.online_beyond")
-    bj = RESULTS / f"{beyond._prefix(quick)}.json"
-    if bj.exists():
-        figs = [f"figures/{beyond._prefix(quick)}_{name}.png" for name in ("convergence", "drift")]
-        md += "\n\n" + beyond._markdown(json.loads(bj.read_text()), figs).strip() + "\n"
-    (RESULTS / f"{pre}.md").write_text(md)
+    (RESULTS / f"{pre}.md").write_text(_markdown(json.loads((RESULTS / f"{pre}.json").read_text())))
 
 
 if __name__ == "__main__":

@@ -1,10 +1,10 @@
 """jaxcal's streaming self-calibration on Dataset 2: quantisation floor, NN variant, noise vs
 Cramer-Rao bound, and adaptivity under temperature drift.
 
-``run(quick, fig_dir) -> str`` returns a markdown section (appended to ``results/online.md`` by
-``experiments/online.py``); ``main(quick)`` writes ``results/online_beyond.json`` and the figures
-``results/figures/online_beyond_*.png`` (quick form: ``online_beyond_quick*``) and prints the
-section. Every number is produced here.
+``python -m experiments.online_beyond [--quick]`` (also run by ``experiments.run_all`` after
+``experiments.online``) writes ``results/online_beyond.md``, ``results/online_beyond.json`` and the
+figures ``results/figures/online_beyond_*.png`` (quick form: ``online_beyond_quick*``). Every number
+is produced here.
 """
 
 from __future__ import annotations
@@ -20,15 +20,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcal import fisher
-from jaxcal.metrics import error_stats
+from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS
 from jaxcal.normalise import bounds_from_spec
 from jaxcal.online import (
     NNOnlineHP,
     OnlineHP,
     ZeroLastMLP,
-    calibrate_acc,
-    calibrate_gyr,
-    init_state,
+    make_filter,
     nn_calibrate_acc,
     nn_calibrate_gyr,
     online_nn_scan_jit,
@@ -37,7 +35,7 @@ from jaxcal.online import (
 )
 from jaxcal.sensor import Diag
 from jaxcal.simulate import Dataset2Config, dataset2
-from jaxcal.simulate.dataset2 import ACC_RANGE_G, GYR_RANGE_RADS, test_sets
+from jaxcal.simulate.dataset2 import test_sets
 from jaxcal.simulate.drift import DriftConfig, simulate_drift
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -69,8 +67,9 @@ def true_theta(acc_true: Diag, gyr_true: Diag, acc_spec: Diag, gyr_spec: Diag) -
 
 
 def _errors(theta, kind, u_acc_test, x_acc, u_gyr_test, x_gyr):
-    ea = jnp.mean(jnp.linalg.norm(calibrate_acc(theta, u_acc_test, kind) - x_acc, axis=-1))
-    eg = jnp.mean(jnp.linalg.norm(calibrate_gyr(theta, u_gyr_test, kind) - x_gyr, axis=-1))
+    filt = make_filter(kind)
+    ea = jnp.mean(jnp.linalg.norm(filt.calibrate_acc(theta, u_acc_test) - x_acc, axis=-1))
+    eg = jnp.mean(jnp.linalg.norm(filt.calibrate_gyr(theta, u_gyr_test) - x_gyr, axis=-1))
     return ea, eg
 
 
@@ -101,7 +100,7 @@ def part_floor(quick: bool) -> dict:
         }
         hp = _hp64(OnlineHP())
         for kind in ("diag", "affine"):
-            st0 = init_state(kind, hp, jnp.float64)
+            st0 = make_filter(kind).init(hp, jnp.float64)
             t0 = time.perf_counter()
             _scan.lower(st0, batch, _f64(d.dt), hp, kind).compile()
             t_compile = time.perf_counter() - t0
@@ -144,7 +143,6 @@ def part_nn(d, batch, ua_t, xa, ug_t, xg, quick: bool) -> dict:
     hp = _hp64(OnlineHP())
     nn_hp = NNOnlineHP(*[jnp.asarray(v) for v in NNOnlineHP(steps=2 if quick else 5)])
     buffer_size = 16
-    aspec, gspec = _spec64(d.acc_spec), _spec64(d.gyr_spec)
     # eq. 3.6 bounds in spec-converted units: +-range around 0
     unit = Diag(jnp.ones(3), jnp.zeros(3))
     ba, bg = bounds_from_spec(unit, ACC_RANGE_G), bounds_from_spec(unit, GYR_RANGE_RADS)
@@ -157,8 +155,8 @@ def part_nn(d, batch, ua_t, xa, ug_t, xg, quick: bool) -> dict:
     mlp = ZeroLastMLP()
 
     def errs(th, pa, pg):
-        ea = jnp.mean(jnp.linalg.norm(nn_calibrate_acc(th, pa, ua_t, ba, nn_hp, kind, mlp) - xa, axis=-1))
-        eg = jnp.mean(jnp.linalg.norm(nn_calibrate_gyr(th, pg, ug_t, bg, nn_hp, kind, mlp) - xg, axis=-1))
+        ea = jnp.mean(jnp.linalg.norm(nn_calibrate_acc(make_filter(kind), th, pa, ua_t, ba, nn_hp, mlp) - xa, axis=-1))
+        eg = jnp.mean(jnp.linalg.norm(nn_calibrate_gyr(make_filter(kind), th, pg, ug_t, bg, nn_hp, mlp) - xg, axis=-1))
         return ea, eg
 
     curve = jax.jit(jax.vmap(errs))(th_h, pa_h, pg_h)
@@ -217,14 +215,15 @@ def part_noise(quick: bool) -> dict:
         th_true = true_theta(acc_end, gyr_end, aspec, gspec)
         row = {}
         kind = "diag"
+        filt = make_filter(kind)
         for label, ramp in (("diag", 1.0), ("diag, ramp_power=0", 0.0)):
             hp = _hp64(OnlineHP(sigma_acc=sig_a, ramp_power=ramp))
-            st, _ = _scan(init_state(kind, hp, jnp.float64), batch, _f64(dd.dt), hp, kind)
+            st, _ = _scan(filt.init(hp, jnp.float64), batch, _f64(dd.dt), hp, kind)
             ea, eg = _errors(st.theta, kind, ua_t, xa, ug_t, xg)
             fa, fg = _errors(th_true, kind, ua_t, xa, ug_t, xg)
             # calibration-induced error: estimate vs true calibration on the same test readings
-            ia = jnp.mean(jnp.linalg.norm(calibrate_acc(st.theta, ua_t, kind) - calibrate_acc(th_true, ua_t, kind), axis=-1))
-            ig = jnp.mean(jnp.linalg.norm(calibrate_gyr(st.theta, ug_t, kind) - calibrate_gyr(th_true, ug_t, kind), axis=-1))
+            ia = jnp.mean(jnp.linalg.norm(filt.calibrate_acc(st.theta, ua_t) - filt.calibrate_acc(th_true, ua_t), axis=-1))
+            ig = jnp.mean(jnp.linalg.norm(filt.calibrate_gyr(st.theta, ug_t) - filt.calibrate_gyr(th_true, ug_t), axis=-1))
             row[label] = {
                 "acc_mg": float(ea) * 1e3, "gyr_mrads": float(eg) * 1e3,
                 "floor_acc_mg": float(fa) * 1e3, "floor_gyr_mrads": float(fg) * 1e3,
@@ -232,7 +231,6 @@ def part_noise(quick: bool) -> dict:
             }
             if crb_cache is None:
                 # Fisher at the truth of the white-noise case (the same motion is reused for +rw).
-                m0 = dd.truth.acc_model
                 f0s = _f64(dd.seqs.acc_true[:, 0])
                 ug_true = (_f64(dd.seqs.gyr_true) * _f64(dd.truth.gyr_model.s)[:, None, :]
                            + _f64(dd.truth.gyr_model.b)[:, None, :] - gspec.b) / gspec.s
@@ -246,10 +244,10 @@ def part_noise(quick: bool) -> dict:
                 t_f = time.perf_counter() - t0
                 cov = jnp.linalg.inv(fis)
                 key = jax.random.PRNGKey(SEED + 9)
-                qa = calibrate_acc(th_true, ua_t, kind) - xa
-                qg = calibrate_gyr(th_true, ug_t, kind) - xg
-                fa_ = lambda th: calibrate_acc(th, ua_t, kind)  # noqa: E731
-                fg_ = lambda th: calibrate_gyr(th, ug_t, kind)  # noqa: E731
+                qa = filt.calibrate_acc(th_true, ua_t) - xa
+                qg = filt.calibrate_gyr(th_true, ug_t) - xg
+                fa_ = lambda th: filt.calibrate_acc(th, ua_t)  # noqa: E731
+                fg_ = lambda th: filt.calibrate_gyr(th, ug_t)  # noqa: E731
                 crb_cache = {
                     "cal_induced_acc_mg": float(fisher.expected_error(key, cov, fa_, th_true)) * 1e3,
                     "cal_induced_gyr_mrads": float(fisher.expected_error(key, cov, fg_, th_true)) * 1e3,
@@ -267,7 +265,6 @@ def part_noise(quick: bool) -> dict:
                     },
                     "fisher_s": t_f,
                 }
-                del m0
             err = np.asarray(st.theta - th_true)
             row[label]["param_err"] = {
                 "acc_scale_ppm": (err[:3] * 1e6).tolist(), "acc_bias_ug": (err[3:6] * 1e6).tolist(),
@@ -296,9 +293,9 @@ def part_drift(quick: bool) -> dict:
     hps = OnlineHP(*[jnp.full(len(lambdas), v) for v in OnlineHP(sigma_acc=sig_a)])._replace(
         forgetting=jnp.asarray(lambdas, jnp.float64)
     )
-    st0 = init_state(kind, OnlineHP(), jnp.float64)
+    st0 = make_filter(kind).init(OnlineHP(), jnp.float64)
     t0 = time.perf_counter()
-    _, hist = _scan_vmap_hp(st0, batch, _f64(dd.dt), hps, kind)  # (H, M, P)
+    _, hist = _scan_vmap_hp(st0, batch, _f64(dd.dt), hps, kind)  # (H, M, Q)
     jax.block_until_ready(hist)
     t_pass = time.perf_counter() - t0
     n_cal = 100  # frozen one-off calibration: the lambda = 1 estimate after the first 100 sequences
@@ -314,7 +311,7 @@ def part_drift(quick: bool) -> dict:
         ua, ug = (ra - aspec.b) / aspec.s, (rg - gspec.b) / gspec.s
         return jax.vmap(lambda th: _errors(th, kind, ua, xa, ug, xg))(thetas)
 
-    thetas = jnp.concatenate([frozen[None, None].repeat(len(idx), 1), hist[:, idx]], axis=0)  # (1+H, E, P)
+    thetas = jnp.concatenate([frozen[None, None].repeat(len(idx), 1), hist[:, idx]], axis=0)  # (1+H, E, Q)
     errs = jax.jit(jax.vmap(eval_at, in_axes=(0, 1), out_axes=1))(jnp.asarray(idx), thetas)  # (1+H, E) x2
     names = ["frozen (first 100 seq)"] + [f"online lambda={lam:g}" for lam in lambdas]
     ea, eg = np.asarray(errs[0]) * 1e3, np.asarray(errs[1]) * 1e3
@@ -523,8 +520,10 @@ def compute(quick: bool) -> dict:
 
 
 def main(quick: bool) -> None:
-    """Write ``results/online_beyond.json`` and ``results/figures/online_beyond_*.png``; print the section."""
-    print(run(quick, ROOT / "results" / "figures"))
+    """Write ``results/online_beyond[_quick].{md,json}`` and ``results/figures/online_beyond_*.png``."""
+    md = "# Beyond the thesis: jaxcal online on Dataset 2\n\n" + run(quick, ROOT / "results" / "figures").strip() + "\n"
+    (ROOT / "results" / f"{_prefix(quick)}.md").write_text(md)
+    print(md)
 
 
 if __name__ == "__main__":

@@ -11,10 +11,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import optax
-from jaxtyping import Array, Float
+from jaxtyping import Float, Int
 
+from jaxcal.arrays import Array
 from jaxcal.linear import fit_affine
 from jaxcal.nn import MLP, fit_nn, nn_calibrate
 from jaxcal.normalise import Bounds
@@ -30,8 +30,17 @@ class NNTrainSpec(NamedTuple):
     The step size decays exponentially from ``lr_init`` to ``lr_final`` over ``max_epochs``
     (equal values: constant). Training stops after ``patience`` epochs without a validation
     improvement and returns the best-validation weights. Defaults: the full-form setting of
-    ``experiments/offline.py`` (constant 2e-2; full-batch Adam needs tens of thousands of steps to
-    reach the ~1 mg level, and the early stopping absorbs its occasional loss spikes).
+    ``experiments/offline.py`` (constant 2e-2; why, and how it was chosen: ``results/offline.md``).
+
+    Static: callers close over the spec (:func:`nn_calibrate_subsets` under ``jit``/``vmap``), so a
+    new value compiles anew; to vmap over learning rates, pass a traced
+    :class:`~jaxcal.train.TrainConfig` to :func:`jaxcal.nn.fit_nn` instead.
+
+    Attributes:
+        lr_init: Adam step size at the first epoch.
+        lr_final: step size at ``max_epochs`` (exponential decay in between).
+        patience: epochs without a validation improvement before stopping.
+        max_epochs: hard cap on epochs (it also sizes the loss histories).
     """
 
     lr_init: float = 2e-2
@@ -78,7 +87,7 @@ def nn_calibrate_subsets(
     val: tuple[Float[Array, "V 3"], Float[Array, "V 3"]],
     y_te: Float[Array, "T 3"],
     spec: NNTrainSpec,
-) -> tuple[Float[Array, "K T 3"], Float[Array, "K"], Float[Array, "K"]]:
+) -> tuple[Float[Array, "K T 3"], Int[Array, " K"], Int[Array, " K"]]:
     """Fit the NN on every subset row of ``weights`` (one init key) and calibrate ``y_te``.
 
     Args:

@@ -28,7 +28,7 @@ No static-gyro residual is used: at the static ends the raw gyro reads ``round(b
 those samples carry a bias of up to 0.5 LSB that does not average out.
 
 Estimator. The state is ``(theta, Lambda)``: the current estimate and its information matrix
-(``P`` and ``P x P``; fixed size, independent of the number of sequences). For each new sequence:
+(length ``n_params`` and ``n_params x n_params``; fixed size, independent of the number of sequences). For each new sequence:
 (1) prediction: exponential forgetting ``Lambda <- lambda Lambda`` and additive process noise
 ``Q`` (covariance), computed as ``(I + lambda Lambda Q)^{-1} lambda Lambda`` so that ``Q = 0``
 is exact; (2) a few Gauss-Newton iterations on ``|r(theta, f_0)|^2 / sigma^2 + |theta -
@@ -38,10 +38,24 @@ theta_prior|^2_Lambda`` (jointly in ``theta`` and the 2-dof ``f_0`` perturbation
 whole pass is one ``jax.lax.scan`` inside one ``jit``; hyperparameters are a NamedTuple of
 (traceable) arrays, so passes ``vmap`` over them. Use float64 (the public entry points switch it
 on locally): the rounding floor is 1e-5 relative.
+
+Static and traced. The parameter layout (``kind``) is the only static choice: :func:`make_filter`
+closes over it once and returns a :class:`Filter` (``init``, ``predict``, ``update``, ``unpack``,
+``calibrate_acc`` ...), optax-style, so the functions inside take no ``kind``. The entry points
+(:func:`online_scan`, :func:`online_pass`, :func:`online_nn_scan`, :func:`to_linear_cal`,
+:func:`fit_online_recording`) take ``kind`` as a static argument (a new kind compiles anew);
+:class:`OnlineHP`, :class:`NNOnlineHP`, states and data are traced (vmappable, no recompile).
+:class:`Calib` is the filter's internal, spec-relative parameterisation; the interchange type is
+:class:`~jaxcal.sensor.LinearCal` (:func:`to_linear_cal`).
+
+Dimension letters: ``Q`` parameters (``n_params``), ``M`` sequences, ``N`` samples per sequence,
+``L`` samples of a recording, ``B`` sequences in the replay buffer.
 """
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -49,43 +63,87 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jaxtyping import Array, Float, Int
+from jaxtyping import Float, Int
 
-from jaxcal.nn import MLP, THESIS_LEAKY_SLOPE, THESIS_ONLINE_WIDTHS
+from jaxcal.arrays import Array
+from jaxcal.nn import THESIS_LEAKY_SLOPE, THESIS_ONLINE_WIDTHS
 from jaxcal.normalise import Bounds, normalise
-from jaxcal.recording import sequence_bounds
-from jaxcal.rotation import propagate_specific_force, total_rotation
-from jaxcal.sensor import Affine, Diag
+from jaxcal.online_thesis import acc_loss, gyro_loss
+from jaxcal.rotation import propagate_specific_force
+from jaxcal.sensor import Affine, Diag, LinearCal
+from jaxcal.sequences import pad_with_mask
+
+__all__ = [
+    "KINDS",
+    "Filter",
+    "NNOnlineHP",
+    "NNState",
+    "OnlineHP",
+    "OnlineState",
+    "SequenceBatch",
+    "ZeroLastMLP",
+    "fit_online_recording",
+    "make_filter",
+    "nn_calibrate_acc",
+    "nn_calibrate_gyr",
+    "online_nn_scan",
+    "online_nn_scan_jit",
+    "online_pass",
+    "online_scan",
+    "spec_sequences",
+    "tangent_basis",
+    "thesis_acc_loss",
+    "thesis_gyro_loss",
+    "to_linear_cal",
+]
 
 KINDS = ("diag", "affine")
 
 
 # ----------------------------------------------------------------------------------------------
-# parameter layout
+# parameter layout (static: one per kind)
 # ----------------------------------------------------------------------------------------------
 
 
-def n_params(kind: str) -> int:
-    """Number of calibration parameters: 12 (``diag``) or 21 (``affine``, gauge-fixed)."""
-    return {"diag": 12, "affine": 21}[kind]
+class _Layout(NamedTuple):
+    """Where the free entries of ``D_a``, ``D_g`` and the biases sit in ``theta`` (static: Python
+    values only; arrays are made at each use, so the x64 setting of the caller applies)."""
+
+    ia: tuple[int, ...]  # flat indices of the free entries of D_a (3 x 3)
+    ig: tuple[int, ...]  # flat indices of the free entries of D_g
+    diag_a: tuple[bool, ...]  # which of ia / ig are diagonal (scale) entries
+    diag_g: tuple[bool, ...]
+    sa: slice  # theta slices: D_a entries, e_a, D_g entries, e_g
+    sea: slice
+    sg: slice
+    seg: slice
+    n: int  # number of parameters
 
 
-def _layout(kind: str) -> tuple[np.ndarray, np.ndarray, slice, slice, slice, slice]:
-    """Index arrays of the free entries of ``D_a``, ``D_g`` and the slices of theta."""
+def _layout(kind: str) -> _Layout:
+    """The layout of ``kind``: ``diag`` (6 + 6) or ``affine`` (9 + 12, ``D_a`` upper triangular)."""
     if kind == "diag":
-        ia = np.array([0, 4, 8])
-        ig = np.array([0, 4, 8])
+        ia = ig = (0, 4, 8)
     elif kind == "affine":
-        ia = np.array([0, 1, 2, 4, 5, 8])  # upper triangle (gauge fix)
-        ig = np.arange(9)
+        ia = (0, 1, 2, 4, 5, 8)  # upper triangle (gauge fix)
+        ig = tuple(range(9))
     else:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     na, ng = len(ia), len(ig)
-    return ia, ig, slice(0, na), slice(na, na + 3), slice(na + 3, na + 3 + ng), slice(na + 3 + ng, na + 6 + ng)
+    is_diag = lambda idx: tuple(i in (0, 4, 8) for i in idx)  # noqa: E731
+    return _Layout(
+        ia, ig, is_diag(ia), is_diag(ig),
+        slice(0, na), slice(na, na + 3), slice(na + 3, na + 3 + ng), slice(na + 3 + ng, na + 6 + ng), na + ng + 6,
+    )
 
 
 class Calib(NamedTuple):
-    """Calibration in spec-converted units: ``a_c = K_a u_a - e_a``, ``w_c = K_g u_g - e_g``."""
+    """The filter's internal parameterisation, in spec-converted units: ``a_c = K_a u_a - e_a``,
+    ``w_c = K_g u_g - e_g`` (``u = (y - b_spec) / s_spec``, eq. 4.8).
+
+    Internal: it is relative to the datasheet models, so it is no interchange type; convert with
+    :func:`to_linear_cal` (a :class:`~jaxcal.sensor.LinearCal` per sensor, in sensor units).
+    """
 
     K_a: Float[Array, "3 3"]
     e_a: Float[Array, "3"]
@@ -93,55 +151,35 @@ class Calib(NamedTuple):
     e_g: Float[Array, "3"]
 
 
-def unpack(theta: Float[Array, "P"], kind: str) -> Calib:
+def _unpack(lay: _Layout, theta: Float[Array, " Q"]) -> Calib:
     """Map the flat parameter vector to the two linear calibrations (``theta = 0``: spec)."""
-    ia, ig, sa, sea, sg, seg = _layout(kind)
     eye = jnp.eye(3, dtype=theta.dtype)
-    k_a = eye + jnp.zeros(9, theta.dtype).at[ia].set(theta[sa]).reshape(3, 3)
-    k_g = eye + jnp.zeros(9, theta.dtype).at[ig].set(theta[sg]).reshape(3, 3)
-    return Calib(k_a, theta[sea], k_g, theta[seg])
+    k_a = eye + jnp.zeros(9, theta.dtype).at[np.array(lay.ia)].set(theta[lay.sa]).reshape(3, 3)
+    k_g = eye + jnp.zeros(9, theta.dtype).at[np.array(lay.ig)].set(theta[lay.sg]).reshape(3, 3)
+    return Calib(k_a, theta[lay.sea], k_g, theta[lay.seg])
 
 
-def per_param(kind: str, scale: Any, cross: Any, acc_bias: Any, gyr_bias: Any) -> Float[Array, "P"]:
+def _per_param(lay: _Layout, scale: Any, cross: Any, acc_bias: Any, gyr_bias: Any) -> Float[Array, " Q"]:
     """A per-parameter vector from four class values (scale entries, cross-axis, biases)."""
-    ia, ig, sa, sea, sg, seg = _layout(kind)
-    diag_a = np.isin(ia, [0, 4, 8])
-    diag_g = np.isin(ig, [0, 4, 8])
     parts = [
-        jnp.where(jnp.asarray(diag_a), scale, cross),
+        jnp.where(jnp.asarray(np.array(lay.diag_a)), scale, cross),
         jnp.broadcast_to(acc_bias, (3,)),
-        jnp.where(jnp.asarray(diag_g), scale, cross),
+        jnp.where(jnp.asarray(np.array(lay.diag_g)), scale, cross),
         jnp.broadcast_to(gyr_bias, (3,)),
     ]
     return jnp.concatenate([jnp.asarray(p, dtype=jnp.result_type(float)) for p in parts])
 
 
-def calibrate_acc(theta: Float[Array, "P"], u: Float[Array, "... 3"], kind: str) -> Float[Array, "... 3"]:
+def _calibrate_acc(lay: _Layout, theta: Float[Array, " Q"], u: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Calibrated specific force (g) of spec-converted accelerometer readings ``u``."""
-    c = unpack(theta, kind)
+    c = _unpack(lay, theta)
     return u @ c.K_a.T - c.e_a
 
 
-def calibrate_gyr(theta: Float[Array, "P"], u: Float[Array, "... 3"], kind: str) -> Float[Array, "... 3"]:
+def _calibrate_gyr(lay: _Layout, theta: Float[Array, " Q"], u: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Calibrated body rate (rad/s) of spec-converted gyroscope readings ``u``."""
-    c = unpack(theta, kind)
+    c = _unpack(lay, theta)
     return u @ c.K_g.T - c.e_g
-
-
-def to_affine(theta: Float[Array, "P"], kind: str, acc_spec: Diag, gyr_spec: Diag) -> tuple[Affine, Affine]:
-    """Forward sensor models ``y = S x + b`` (LSB) equal to the calibration ``theta``.
-
-    ``x = K (y - b_spec) / s_spec - e``  <=>  ``y = S x + b`` with ``S = (K diag(1/s_spec))^{-1}``
-    and ``b = b_spec + S e``.
-    """
-    c = unpack(theta, kind)
-
-    def one(k, e, spec):
-        a = k / spec.s[None, :]
-        s = jnp.linalg.inv(a)
-        return Affine(S=s, b=spec.b + s @ e)
-
-    return one(c.K_a, c.e_a, acc_spec), one(c.K_g, c.e_g, gyr_spec)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -158,16 +196,35 @@ def tangent_basis(f: Float[Array, "3"]) -> Float[Array, "3 2"]:
     return jnp.stack([b1, b2], axis=1)
 
 
-def sequence_residuals(
-    theta: Float[Array, "P"],
+def _predict_acc_readings(
+    lay: _Layout,
+    theta: Float[Array, " Q"],
+    delta: Float[Array, "2"],
+    f0_ref: Float[Array, "3"],
+    u_gyr: Float[Array, "N 3"],
+    mask: Float[Array, " N"],
+    dt: float | Float[Array, ""],
+) -> Float[Array, "N 3"]:
+    """Noise-free spec-converted accelerometer readings ``K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one
+    sequence: gravity from ``f_0 = normalise(f0_ref + B delta)`` carried by the calibrated gyro."""
+    c = _unpack(lay, theta)
+    w_c = _calibrate_gyr(lay, theta, u_gyr) * mask[:, None]
+    f0 = f0_ref + tangent_basis(f0_ref) @ delta
+    f0 = f0 / jnp.linalg.norm(f0)
+    f = propagate_specific_force(f0, w_c[:-1], dt)
+    return jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
+
+
+def _sequence_residuals(
+    lay: _Layout,
+    theta: Float[Array, " Q"],
     delta: Float[Array, "2"],
     f0_ref: Float[Array, "3"],
     u_acc: Float[Array, "N 3"],
     u_gyr: Float[Array, "N 3"],
-    mask: Float[Array, "N"],
+    mask: Float[Array, " N"],
     dt: float | Float[Array, ""],
-    kind: str,
-) -> Float[Array, "3N"]:
+) -> Float[Array, " 3*N"]:
     """Measurement-space residuals ``u_a,n - K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one sequence
     (spec-converted accelerometer units, ~g), flattened; masked samples give 0.
 
@@ -178,31 +235,18 @@ def sequence_residuals(
     ``K_a = 0``), which biases the estimate by ~``sigma^2`` and, with datasheet-level noise,
     pulls the gyroscope scale off by several standard deviations.
     """
-    u_pred = predict_acc_readings(theta, delta, f0_ref, u_gyr, mask, dt, kind)
+    u_pred = _predict_acc_readings(lay, theta, delta, f0_ref, u_gyr, mask, dt)
     return ((u_acc - u_pred) * mask[:, None]).reshape(-1)
 
 
-def predict_acc_readings(
-    theta: Float[Array, "P"],
-    delta: Float[Array, "2"],
-    f0_ref: Float[Array, "3"],
-    u_gyr: Float[Array, "N 3"],
-    mask: Float[Array, "N"],
-    dt: float | Float[Array, ""],
-    kind: str,
-) -> Float[Array, "N 3"]:
-    """Noise-free spec-converted accelerometer readings ``K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one
-    sequence: gravity from ``f_0 = normalise(f0_ref + B delta)`` carried by the calibrated gyro."""
-    c = unpack(theta, kind)
-    w_c = calibrate_gyr(theta, u_gyr, kind) * mask[:, None]
-    f0 = f0_ref + tangent_basis(f0_ref) @ delta
-    f0 = f0 / jnp.linalg.norm(f0)
-    f = propagate_specific_force(f0, w_c[:-1], dt)
-    return jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
+# ----------------------------------------------------------------------------------------------
+# the filter
+# ----------------------------------------------------------------------------------------------
 
 
 class OnlineHP(NamedTuple):
-    """Hyperparameters of the streaming filter (every field may be a traced array; vmappable).
+    """Hyperparameters of the streaming filter. Traced: every field may be an array (vmappable;
+    changing a value does not recompile).
 
     Attributes:
         sigma_acc: standard deviation of one accelerometer residual component (g); quantisation
@@ -238,34 +282,33 @@ class OnlineHP(NamedTuple):
 
 
 class OnlineState(NamedTuple):
-    """Fixed-size filter state.
+    """Fixed-size filter state (traced).
 
-    ``theta`` (P,) is the current estimate; ``info`` (P, P) the information matrix of the data
+    ``theta`` (Q,) is the current estimate; ``info`` (Q, Q) the information matrix of the data
     seen so far, *excluding* the fixed datasheet prior (which is never forgotten, so the estimate
     stays regularised by the spec tolerance even with forgetting); ``count`` the number of
     sequences seen (for the start-up schedule). The posterior information is ``info + Lambda_0``.
     """
 
-    theta: Float[Array, "P"]
-    info: Float[Array, "P P"]
+    theta: Float[Array, " Q"]
+    info: Float[Array, "Q Q"]
     count: Int[Array, ""]
 
 
-def prior_info(kind: str, hp: OnlineHP, dtype: Any = None) -> Float[Array, "P P"]:
+def _prior_info(lay: _Layout, hp: OnlineHP, dtype: Any = None) -> Float[Array, "Q Q"]:
     """``Lambda_0``: the datasheet prior (around ``theta = 0``) with the std of ``hp``."""
     dtype = dtype or jnp.result_type(float)
-    sd = per_param(kind, hp.prior_scale, hp.prior_cross, hp.prior_acc_bias, hp.prior_gyr_bias).astype(dtype)
+    sd = _per_param(lay, hp.prior_scale, hp.prior_cross, hp.prior_acc_bias, hp.prior_gyr_bias).astype(dtype)
     return jnp.diag(1.0 / sd**2)
 
 
-def init_state(kind: str, hp: OnlineHP, dtype: Any = None) -> OnlineState:
+def _init_state(lay: _Layout, hp: OnlineHP, dtype: Any = None) -> OnlineState:
     """Start at the spec values (``theta = 0``) with no data information."""
     dtype = dtype or jnp.result_type(float)
-    p = n_params(kind)
-    return OnlineState(theta=jnp.zeros(p, dtype), info=jnp.zeros((p, p), dtype), count=jnp.asarray(0))
+    return OnlineState(theta=jnp.zeros(lay.n, dtype), info=jnp.zeros((lay.n, lay.n), dtype), count=jnp.asarray(0))
 
 
-def predict(state: OnlineState, hp: OnlineHP, kind: str) -> OnlineState:
+def _predict(lay: _Layout, state: OnlineState, hp: OnlineHP) -> OnlineState:
     """Forgetting and process noise on the *data* information (the datasheet prior is kept).
 
     With ``lambda = forgetting * ((m + 1) / (m + 2))^ramp_power`` before the ``m``-th update and
@@ -274,8 +317,8 @@ def predict(state: OnlineState, hp: OnlineHP, kind: str) -> OnlineState:
     theta``, so the predicted estimate is ``(A Lambda + Lambda_0)^{-1} A (Lambda + Lambda_0)
     theta``. ``lambda = 1``, ``Q = 0`` is exactly the identity.
     """
-    info_0 = prior_info(kind, hp, state.info.dtype)
-    q = per_param(kind, hp.q_scale, hp.q_cross, hp.q_acc_bias, hp.q_gyr_bias).astype(state.info.dtype) ** 2
+    info_0 = _prior_info(lay, hp, state.info.dtype)
+    q = _per_param(lay, hp.q_scale, hp.q_cross, hp.q_acc_bias, hp.q_gyr_bias).astype(state.info.dtype) ** 2
     m = state.count.astype(state.info.dtype)
     lam = hp.forgetting * ((m + 1.0) / (m + 2.0)) ** hp.ramp_power
     eye = jnp.eye(state.info.shape[0], dtype=state.info.dtype)
@@ -287,14 +330,14 @@ def predict(state: OnlineState, hp: OnlineHP, kind: str) -> OnlineState:
     return OnlineState(theta, info, state.count)
 
 
-def update(
+def _update(
+    lay: _Layout,
     state: OnlineState,
     u_acc: Float[Array, "N 3"],
     u_gyr: Float[Array, "N 3"],
-    mask: Float[Array, "N"],
+    mask: Float[Array, " N"],
     dt: float | Float[Array, ""],
     hp: OnlineHP,
-    kind: str,
 ) -> OnlineState:
     """Measurement update with one sequence: iterated GN on (theta, f_0) with the previous
     posterior ``|theta - theta_prev|^2_(Lambda + Lambda_0)`` as prior, then Schur-marginalise
@@ -303,13 +346,13 @@ def update(
     datasheet prior once per sequence and bias the estimate towards the spec values)."""
     p = state.theta.shape[0]
     theta_p, info_p = state.theta, state.info
-    info_0 = prior_info(kind, hp, theta_p.dtype)
-    a0 = calibrate_acc(theta_p, u_acc[0], kind)
+    info_0 = _prior_info(lay, hp, theta_p.dtype)
+    a0 = _calibrate_acc(lay, theta_p, u_acc[0])
     f0_ref = a0 / jnp.linalg.norm(a0)
     w_obs = 1.0 / hp.sigma_acc**2
 
     def res(z):
-        return sequence_residuals(z[:p], z[p:], f0_ref, u_acc, u_gyr, mask, dt, kind)
+        return _sequence_residuals(lay, z[:p], z[p:], f0_ref, u_acc, u_gyr, mask, dt)
 
     def cost(z):
         d = z[:p] - theta_p
@@ -341,8 +384,116 @@ def update(
     return OnlineState(z[:p], 0.5 * (info + info.T), state.count + 1)
 
 
+class Filter(NamedTuple):
+    """The streaming filter of one parameter layout, as functions (optax-style; made by
+    :func:`make_filter`).
+
+    Static: a ``Filter`` is one choice of ``kind`` closed over once; as a ``jit`` argument it is
+    static (a new kind compiles anew). Everything its functions take is traced: ``theta``
+    (length :attr:`n_params`), states, data, ``dt`` and :class:`OnlineHP` may be ``vmap``-ed.
+
+    Attributes:
+        kind: ``"diag"`` or ``"affine"``.
+        n_params: number of calibration parameters ``Q``: 12 (``diag``) or 21 (``affine``).
+        unpack: ``theta -> Calib`` (``theta = 0``: the spec values).
+        per_param: ``(scale, cross, acc_bias, gyr_bias) -> (Q,)``, a value per parameter class.
+        calibrate_acc: ``(theta, u) -> a_c`` (g) of spec-converted accelerometer readings.
+        calibrate_gyr: ``(theta, u) -> w_c`` (rad/s) of spec-converted gyroscope readings.
+        predict_acc_readings: ``(theta, delta, f0_ref, u_gyr, mask, dt) -> (N, 3)`` noise-free
+            spec-converted accelerometer readings of one sequence.
+        sequence_residuals: ``(theta, delta, f0_ref, u_acc, u_gyr, mask, dt) -> (3 N,)``.
+        prior_info: ``(hp, dtype=None) -> Lambda_0``, the datasheet prior information.
+        init: ``(hp, dtype=None) -> OnlineState`` at the spec values.
+        predict: ``(state, hp) -> state``: forgetting and process noise.
+        update: ``(state, u_acc, u_gyr, mask, dt, hp) -> state``: one sequence.
+    """
+
+    kind: str
+    n_params: int
+    unpack: Callable[..., Calib]
+    per_param: Callable[..., Array]
+    calibrate_acc: Callable[..., Array]
+    calibrate_gyr: Callable[..., Array]
+    predict_acc_readings: Callable[..., Array]
+    sequence_residuals: Callable[..., Array]
+    prior_info: Callable[..., Array]
+    init: Callable[..., OnlineState]
+    predict: Callable[..., OnlineState]
+    update: Callable[..., OnlineState]
+
+
+@functools.lru_cache(maxsize=None)
+def make_filter(kind: str) -> Filter:
+    """The streaming filter of ``kind``, with its parameter layout computed once.
+
+    One object per kind (cached), so a ``Filter`` passed as a static ``jit`` argument compiles
+    once per kind.
+
+    Args:
+        kind: ``"diag"`` (``K = I + D`` with ``D`` diagonal: 6 + 6 parameters, eq. 4.6 truth) or
+            ``"affine"`` (``D_a`` upper triangular, ``D_g`` full: 9 + 12 parameters).
+    """
+    lay = _layout(kind)
+    bind = functools.partial
+    return Filter(
+        kind=kind,
+        n_params=lay.n,
+        unpack=bind(_unpack, lay),
+        per_param=bind(_per_param, lay),
+        calibrate_acc=bind(_calibrate_acc, lay),
+        calibrate_gyr=bind(_calibrate_gyr, lay),
+        predict_acc_readings=bind(_predict_acc_readings, lay),
+        sequence_residuals=bind(_sequence_residuals, lay),
+        prior_info=bind(_prior_info, lay),
+        init=bind(_init_state, lay),
+        predict=bind(_predict, lay),
+        update=bind(_update, lay),
+    )
+
+
+def _forward_models(filt: Filter, theta: Float[Array, " Q"], acc_spec: Diag, gyr_spec: Diag) -> tuple[Affine, Affine]:
+    """Forward sensor models ``y = S x + b`` (LSB) equal to the calibration ``theta``.
+
+    ``x = K (y - b_spec) / s_spec - e``  <=>  ``y = S x + b`` with ``S = (K diag(1/s_spec))^{-1}``
+    and ``b = b_spec + S e``.
+    """
+    c = filt.unpack(theta)
+
+    def one(k, e, spec):
+        a = k / spec.s[None, :]
+        s = jnp.linalg.inv(a)
+        return Affine(S=s, b=spec.b + s @ e)
+
+    return one(c.K_a, c.e_a, acc_spec), one(c.K_g, c.e_g, gyr_spec)
+
+
+def to_linear_cal(theta: Float[Array, " Q"], kind: str, acc_spec: Diag, gyr_spec: Diag) -> tuple[LinearCal, LinearCal]:
+    """The applied calibrations ``x = A (y - b)`` (sensor units in, g and rad/s out) equal to ``theta``.
+
+    ``x = K (y - b_spec) / s_spec - e`` is ``x = A (y - b)`` with ``A = K diag(1/s_spec)`` and
+    ``b = b_spec + A^{-1} e``; ``A`` is returned as the inverse of the forward ``S = A^{-1}``
+    (:meth:`~jaxcal.sensor.LinearCal.from_forward`). Call under ``jax.enable_x64(True)`` with
+    float64 ``theta`` for full precision.
+
+    Args:
+        theta: filter parameters (e.g. :attr:`OnlineState.theta` or one row of a history).
+        kind: (static) the layout of ``theta``, ``"diag"`` or ``"affine"``.
+        acc_spec, gyr_spec: the datasheet models the filter ran with (eq. 4.8).
+
+    Returns:
+        ``(acc_cal, gyr_cal)`` as :class:`~jaxcal.sensor.LinearCal`.
+    """
+    fa, fg = _forward_models(make_filter(kind), theta, acc_spec, gyr_spec)
+    return LinearCal.from_forward(fa), LinearCal.from_forward(fg)
+
+
+# ----------------------------------------------------------------------------------------------
+# streaming passes
+# ----------------------------------------------------------------------------------------------
+
+
 class SequenceBatch(NamedTuple):
-    """Sequences in spec-converted units, padded to a common length ``N`` with a mask."""
+    """Sequences in spec-converted units, padded to a common length ``N`` with a mask (traced)."""
 
     u_acc: Float[Array, "M N 3"]
     u_gyr: Float[Array, "M N 3"]
@@ -351,24 +502,48 @@ class SequenceBatch(NamedTuple):
 
 def spec_sequences(acc: Float[Array, "M N 3"], gyr: Float[Array, "M N 3"], acc_spec: Diag, gyr_spec: Diag,
                    mask: Float[Array, "M N"] | None = None) -> SequenceBatch:
-    """Spec-convert raw sequences (eq. 4.8) into a :class:`SequenceBatch`."""
+    """Spec-convert raw sequences (eq. 4.8) into a :class:`SequenceBatch`.
+
+    Args:
+        acc: (M, N, 3) raw accelerometer sequences (LSB).
+        gyr: (M, N, 3) raw gyroscope sequences (LSB).
+        acc_spec, gyr_spec: datasheet models (eq. 4.8).
+        mask: (M, N) 1 on samples, 0 on padding; None: all ones.
+    """
     if mask is None:
         mask = jnp.ones(acc.shape[:2], acc.dtype)
     return SequenceBatch((acc - acc_spec.b) / acc_spec.s, (gyr - gyr_spec.b) / gyr_spec.s, mask)
 
 
-def online_scan(
-    state0: OnlineState, batch: SequenceBatch, dt: float | Float[Array, ""], hp: OnlineHP, kind: str
-) -> tuple[OnlineState, Float[Array, "M P"]]:
-    """One streaming pass (pure; call under ``jit`` with ``kind`` static). Returns the final state
-    and the estimate after every sequence (for convergence curves; not part of the state)."""
+def _scan(filt: Filter, state0: OnlineState, batch: SequenceBatch, dt: float | Float[Array, ""],
+          hp: OnlineHP) -> tuple[OnlineState, Float[Array, "M Q"]]:
+    """``predict`` then ``update`` per sequence, in one ``lax.scan``."""
 
     def step(state, seq):
         ua, ug, m = seq
-        state = update(predict(state, hp, kind), ua, ug, m, dt, hp, kind)
+        state = filt.update(filt.predict(state, hp), ua, ug, m, dt, hp)
         return state, state.theta
 
     return jax.lax.scan(step, state0, (batch.u_acc, batch.u_gyr, batch.mask))
+
+
+def online_scan(
+    state0: OnlineState, batch: SequenceBatch, dt: float | Float[Array, ""], hp: OnlineHP, kind: str
+) -> tuple[OnlineState, Float[Array, "M Q"]]:
+    """One streaming pass (pure): the final state and the estimate after every sequence (for
+    convergence curves; not part of the state).
+
+    Call under ``jit`` with ``kind`` static; everything else is traced (``vmap`` over ``hp`` runs
+    several filters at once).
+
+    Args:
+        state0: initial state, e.g. ``make_filter(kind).init(hp, jnp.float64)``.
+        batch: the sequences, spec-converted (:func:`spec_sequences`), visited in order.
+        dt: sample period (s).
+        hp: :class:`OnlineHP` (traced).
+        kind: (static) ``"diag"`` or ``"affine"`` (:func:`make_filter`).
+    """
+    return _scan(make_filter(kind), state0, batch, dt, hp)
 
 
 _online_scan_jit = jax.jit(online_scan, static_argnames=("kind",))
@@ -377,26 +552,26 @@ _online_scan_jit = jax.jit(online_scan, static_argnames=("kind",))
 def online_pass(
     acc: Float[Array, "M N 3"],
     gyr: Float[Array, "M N 3"],
-    dt: float,
+    dt: float | Float[Array, ""],
     acc_spec: Diag,
     gyr_spec: Diag,
     hp: OnlineHP = OnlineHP(),
     kind: str = "diag",
     mask: Float[Array, "M N"] | None = None,
-) -> tuple[OnlineState, Float[Array, "M P"]]:
-    """Stream raw sequences (LSB) through the filter once, in float64.
+) -> tuple[OnlineState, Float[Array, "M Q"]]:
+    """Stream raw sequences (LSB) through the filter once, in float64 (one ``jit``; ``kind`` static).
 
     Args:
         acc, gyr: raw counts of ``M`` sequences of ``N`` samples, visited in order.
         dt: sample period (s).
         acc_spec, gyr_spec: datasheet models (initial point; eq. 4.8).
-        hp: :class:`OnlineHP`.
-        kind: ``"diag"`` or ``"affine"``.
+        hp: :class:`OnlineHP` (traced).
+        kind: (static) ``"diag"`` or ``"affine"``.
         mask: optional (M, N) validity mask for padded sequences.
 
     Returns:
         Final :class:`OnlineState` and the estimate after each sequence, both float64 (use them
-        inside ``jax.enable_x64(True)``; convert with :func:`to_affine`).
+        inside ``jax.enable_x64(True)``; convert with :func:`to_linear_cal`).
     """
     with jax.enable_x64(True):
         f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
@@ -404,7 +579,7 @@ def online_pass(
         gspec = Diag(f64(gyr_spec.s), f64(gyr_spec.b))
         batch = spec_sequences(f64(acc), f64(gyr), aspec, gspec, None if mask is None else f64(mask))
         hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
-        state0 = init_state(kind, hp64, jnp.float64)
+        state0 = make_filter(kind).init(hp64, jnp.float64)
         return _online_scan_jit(state0, batch, f64(dt), hp64, kind)
 
 
@@ -413,37 +588,21 @@ def online_pass(
 # ----------------------------------------------------------------------------------------------
 
 
-def _group_sequences(acc: np.ndarray, gyr: np.ndarray, seq: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Split contiguous runs of equal ``seq`` into padded (M, Lmax, 3) arrays and a mask."""
-    starts, ends = sequence_bounds(seq)
-    lmax = int(np.max(ends - starts))
-    m = len(starts)
-    pa = np.zeros((m, lmax, 3))
-    pg = np.zeros((m, lmax, 3))
-    mk = np.zeros((m, lmax))
-    for i, (s, e) in enumerate(zip(starts, ends)):
-        pa[i, : e - s] = acc[s:e]
-        pg[i, : e - s] = gyr[s:e]
-        mk[i, : e - s] = 1.0
-        pa[i, e - s :] = acc[e - 1]  # padding: repeat the last sample (masked anyway)
-        pg[i, e - s :] = gyr[e - 1]
-    return pa, pg, mk
-
-
 def fit_online_recording(
-    acc: Float[Array, "N 3"],
-    gyr: Float[Array, "N 3"],
-    seq: Int[Array, "N"],
-    t_or_dt: Float[Array, "N"] | float,
+    acc: Float[Array, "L 3"],
+    gyr: Float[Array, "L 3"],
+    seq: Int[Array, " L"],
+    t_or_dt: Float[Array, " L"] | float,
     acc_spec: Diag | None,
     gyr_spec: Diag | None,
     hp: OnlineHP = OnlineHP(),
     kind: str = "affine",
-) -> tuple[Affine, Affine]:
+) -> tuple[LinearCal, LinearCal]:
     """Self-calibrate a recording of rotation sequences without labels (method ``online``).
 
     Each contiguous run of equal ``seq`` is one sequence, rotated about the sensor's centre;
-    sequences are streamed in order through :func:`online_pass`.
+    sequences are padded to one length (:func:`jaxcal.sequences.pad_with_mask`) and streamed in
+    order through :func:`online_pass`.
 
     Args:
         acc, gyr: raw outputs (LSB).
@@ -457,7 +616,8 @@ def fit_online_recording(
         kind: ``"affine"`` (default) or ``"diag"``.
 
     Returns:
-        ``(acc_model, gyr_model)`` as :class:`~jaxcal.sensor.Affine` forward models (LSB).
+        ``(acc_cal, gyr_cal)``: :class:`~jaxcal.sensor.LinearCal` applied calibrations ``x = A (y - b)``
+        (numpy float64; ``A`` is ``numpy.linalg.inv`` of the filter's forward ``S``).
     """
     acc = np.asarray(acc, np.float64)
     gyr = np.asarray(gyr, np.float64)
@@ -465,7 +625,8 @@ def fit_online_recording(
         dt = float(t_or_dt)
     else:
         dt = float(np.median(np.diff(np.asarray(t_or_dt, np.float64))))
-    pa, pg, mk = _group_sequences(acc, gyr, np.asarray(seq))
+    pa, mk = pad_with_mask(acc, seq)
+    pg, _ = pad_with_mask(gyr, seq)
     lengths = mk.sum(1).astype(int)
     if acc_spec is None:
         s = float(np.median(np.linalg.norm(acc, axis=1)))
@@ -487,8 +648,10 @@ def fit_online_recording(
     state, _ = online_pass(pa, pg, dt, acc_spec, gyr_spec, hp, kind, mask=mk)
     with jax.enable_x64(True):
         f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-        am, gm = to_affine(state.theta, kind, Diag(f64(acc_spec.s), f64(acc_spec.b)), Diag(f64(gyr_spec.s), f64(gyr_spec.b)))
-        return (Affine(np.asarray(am.S), np.asarray(am.b)), Affine(np.asarray(gm.S), np.asarray(gm.b)))
+        models = _forward_models(make_filter(kind), state.theta, Diag(f64(acc_spec.s), f64(acc_spec.b)),
+                                 Diag(f64(gyr_spec.s), f64(gyr_spec.b)))
+    am, gm = (LinearCal(np.linalg.inv(np.asarray(m.S)), np.asarray(m.b)) for m in models)
+    return am, gm
 
 
 # ----------------------------------------------------------------------------------------------
@@ -510,7 +673,7 @@ class ZeroLastMLP(nn.Module):
 
 
 class NNOnlineHP(NamedTuple):
-    """Hyperparameters of the NN residual (traced fields vmappable).
+    """Hyperparameters of the NN residual. Traced: every field may be an array (vmappable).
 
     Attributes:
         learning_rate: Adam step size for both networks.
@@ -536,38 +699,71 @@ class NNState(NamedTuple):
     opt_g: Any
     buf_a: Float[Array, "B N 3"]
     buf_g: Float[Array, "B N 3"]
-    buf_w: Float[Array, "B"]
+    buf_w: Float[Array, " B"]
     count: Int[Array, ""]
 
 
-def nn_calibrate_acc(theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, kind: str, mlp=ZeroLastMLP()):
-    """Backbone + NN residual accelerometer calibration of spec-converted readings ``raw_u``."""
-    return calibrate_acc(theta, raw_u, kind) + hp.out_scale_acc * mlp.apply({"params": params}, normalise(raw_u, bounds))
+def nn_calibrate_acc(filt: Filter, theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, mlp=ZeroLastMLP()):
+    """Backbone + NN residual accelerometer calibration of spec-converted readings ``raw_u``.
+
+    Args:
+        filt: the backbone's :class:`Filter` (static).
+        theta: (Q,) backbone parameters (traced).
+        params: the residual network's parameters (traced).
+        raw_u: (..., 3) spec-converted readings.
+        bounds: eq. 3.6 bounds of the network input (spec-converted units).
+        hp: :class:`NNOnlineHP` (traced; ``out_scale_acc`` is read).
+        mlp: the residual network (static).
+    """
+    return filt.calibrate_acc(theta, raw_u) + hp.out_scale_acc * mlp.apply({"params": params}, normalise(raw_u, bounds))
 
 
-def nn_calibrate_gyr(theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, kind: str, mlp=ZeroLastMLP()):
-    """Backbone + NN residual gyroscope calibration of spec-converted readings ``raw_u``."""
-    return calibrate_gyr(theta, raw_u, kind) + hp.out_scale_gyr * mlp.apply({"params": params}, normalise(raw_u, bounds))
+def nn_calibrate_gyr(filt: Filter, theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, mlp=ZeroLastMLP()):
+    """Backbone + NN residual gyroscope calibration of spec-converted readings ``raw_u``.
+
+    Args:
+        filt: the backbone's :class:`Filter` (static).
+        theta: (Q,) backbone parameters (traced).
+        params: the residual network's parameters (traced).
+        raw_u: (..., 3) spec-converted readings.
+        bounds: eq. 3.6 bounds of the network input (spec-converted units).
+        hp: :class:`NNOnlineHP` (traced; ``out_scale_gyr`` is read).
+        mlp: the residual network (static).
+    """
+    return filt.calibrate_gyr(theta, raw_u) + hp.out_scale_gyr * mlp.apply({"params": params}, normalise(raw_u, bounds))
 
 
-def thesis_gyro_loss(a_c: Float[Array, "B N 3"], w_c: Float[Array, "B N 3"], dt, wts: Float[Array, "B"]) -> Float[Array, ""]:
-    """Eq. 4.10 in the physical convention: ``MSE(a_c,n+1, Exp(w_c,n dt)^T a_c,n)`` over all steps."""
-    from jaxcal.rotation import rotation_from_rate
-
-    r = rotation_from_rate(w_c[:, :-1], dt)  # (B, N-1, 3, 3)
-    pred = jnp.einsum("bnji,bnj->bni", r, a_c[:, :-1])
-    err = jnp.mean((a_c[:, 1:] - pred) ** 2, axis=(1, 2))
+def _buffer_mean(err: Float[Array, " B"], wts: Float[Array, " B"]) -> Float[Array, ""]:
+    """Mean of per-sequence losses over the filled slots of a replay buffer (weights 0 or 1)."""
     return jnp.sum(wts * err) / jnp.maximum(jnp.sum(wts), 1.0)
 
 
-def thesis_acc_loss(a_c: Float[Array, "B N 3"], w_c: Float[Array, "B N 3"], dt, wts: Float[Array, "B"], w: Any) -> Float[Array, ""]:
-    """Eq. 4.13 in the physical convention: ``w MSE(R_tot^T a_c,1, a_c,N) + (1 - w) |1 - |a_c,N||``."""
-    rt = jax.vmap(lambda ws: total_rotation(ws[:-1], dt))(w_c)
-    target = jnp.einsum("bji,bj->bi", rt, a_c[:, 0])
-    l1 = jnp.mean((target - a_c[:, -1]) ** 2, axis=1)
-    l2 = jnp.abs(1.0 - jnp.linalg.norm(a_c[:, -1], axis=1))
-    err = w * l1 + (1.0 - w) * l2
-    return jnp.sum(wts * err) / jnp.maximum(jnp.sum(wts), 1.0)
+def thesis_gyro_loss(a_c: Float[Array, "B N 3"], w_c: Float[Array, "B N 3"], dt, wts: Float[Array, " B"]) -> Float[Array, ""]:
+    """Eq. 4.10 in the physical convention, :func:`jaxcal.online_thesis.gyro_loss` per sequence,
+    averaged over the buffer's sequences with weights ``wts``.
+
+    Args:
+        a_c: (B, N, 3) calibrated specific force of the buffer's sequences (g).
+        w_c: (B, N, 3) calibrated rates (rad/s).
+        dt: sample period (s).
+        wts: (B,) weight per buffer slot (1 filled, 0 empty).
+    """
+    return _buffer_mean(jax.vmap(lambda w, a: gyro_loss(w, a, dt))(w_c, a_c), wts)
+
+
+def thesis_acc_loss(a_c: Float[Array, "B N 3"], w_c: Float[Array, "B N 3"], dt, wts: Float[Array, " B"], w: Any) -> Float[Array, ""]:
+    """Eq. 4.13 in the physical convention, :func:`jaxcal.online_thesis.acc_loss` per sequence
+    (``w MSE(R_tot^T a_c,1, a_c,N) + (1 - w) |1 - |a_c,N||``; gradients reach ``a_c,1`` too),
+    averaged over the buffer's sequences with weights ``wts``.
+
+    Args:
+        a_c: (B, N, 3) calibrated specific force of the buffer's sequences (g).
+        w_c: (B, N, 3) calibrated rates (rad/s).
+        dt: sample period (s).
+        wts: (B,) weight per buffer slot (1 filled, 0 empty).
+        w: weight ``w`` of eq. 4.13 (traced).
+    """
+    return _buffer_mean(jax.vmap(lambda a1, an, ws: acc_loss(a1, an, ws, dt, w))(a_c[:, 0], a_c[:, -1], w_c), wts)
 
 
 def online_nn_scan(
@@ -580,15 +776,26 @@ def online_nn_scan(
     nn_hp: NNOnlineHP,
     kind: str,
     buffer_size: int,
-) -> tuple[NNState, tuple[Float[Array, "M P"], Any, Any]]:
+) -> tuple[NNState, tuple[Float[Array, "M Q"], Any, Any]]:
     """Stream sequences through backbone filter + NN residuals with a bounded replay buffer.
 
-    For every new sequence: (1) the filter update of the backbone (:func:`update`); (2) the
+    For every new sequence: (1) the filter update of the backbone (:attr:`Filter.update`); (2) the
     sequence enters a ring buffer of ``buffer_size`` sequences; (3) ``nn_hp.steps`` Adam steps on
     the accelerometer residual network with eq. 4.13 (gyroscope fixed), then on the gyroscope
     network with eq. 4.10 (accelerometer fixed), over the whole buffer. Unmasked sequences only
     (Dataset 2). Returns the final state and per-sequence histories of theta and both networks.
+
+    Args:
+        key: PRNG key of the networks' initial weights.
+        batch: the sequences, spec-converted (:func:`spec_sequences`), visited in order.
+        dt: sample period (s).
+        bounds_a, bounds_g: eq. 3.6 input bounds of the two networks (spec-converted units).
+        hp: :class:`OnlineHP` of the backbone (traced).
+        nn_hp: :class:`NNOnlineHP` (traced).
+        kind: (static) the backbone's layout, ``"diag"`` or ``"affine"``.
+        buffer_size: (static) number of sequences in the replay ring.
     """
+    filt = make_filter(kind)
     mlp = ZeroLastMLP()
     ka, kg = jax.random.split(key)
     pa0 = mlp.init(ka, jnp.zeros((1, 3), batch.u_acc.dtype))["params"]
@@ -597,7 +804,7 @@ def online_nn_scan(
     n = batch.u_acc.shape[1]
     dtype = batch.u_acc.dtype
     st0 = NNState(
-        filt=init_state(kind, hp, dtype),
+        filt=filt.init(hp, dtype),
         params_a=pa0,
         params_g=pg0,
         opt_a=opt.init(pa0),
@@ -610,70 +817,38 @@ def online_nn_scan(
 
     def step(st: NNState, seq):
         ua, ug, m = seq
-        filt = update(predict(st.filt, hp, kind), ua, ug, m, dt, hp, kind)
+        fs = filt.update(filt.predict(st.filt, hp), ua, ug, m, dt, hp)
         i = st.count % buffer_size
         buf_a = st.buf_a.at[i].set(ua)
         buf_g = st.buf_g.at[i].set(ug)
         buf_w = st.buf_w.at[i].set(1.0)
-        theta = jax.lax.stop_gradient(filt.theta)
+        theta = jax.lax.stop_gradient(fs.theta)
 
-        def acc_loss(pa, pg):
-            a_c = nn_calibrate_acc(theta, pa, buf_a, bounds_a, nn_hp, kind, mlp)
-            w_c = jax.lax.stop_gradient(nn_calibrate_gyr(theta, pg, buf_g, bounds_g, nn_hp, kind, mlp))
+        def a_loss(pa, pg):
+            a_c = nn_calibrate_acc(filt, theta, pa, buf_a, bounds_a, nn_hp, mlp)
+            w_c = jax.lax.stop_gradient(nn_calibrate_gyr(filt, theta, pg, buf_g, bounds_g, nn_hp, mlp))
             return thesis_acc_loss(a_c, w_c, dt, buf_w, nn_hp.acc_loss_weight)
 
-        def gyr_loss(pg, pa):
-            a_c = jax.lax.stop_gradient(nn_calibrate_acc(theta, pa, buf_a, bounds_a, nn_hp, kind, mlp))
-            w_c = nn_calibrate_gyr(theta, pg, buf_g, bounds_g, nn_hp, kind, mlp)
+        def g_loss(pg, pa):
+            a_c = jax.lax.stop_gradient(nn_calibrate_acc(filt, theta, pa, buf_a, bounds_a, nn_hp, mlp))
+            w_c = nn_calibrate_gyr(filt, theta, pg, buf_g, bounds_g, nn_hp, mlp)
             return thesis_gyro_loss(a_c, w_c, dt, buf_w)
 
         def train(_, carry):
             pa, pg, oa, og = carry
-            ga = jax.grad(acc_loss)(pa, pg)
+            ga = jax.grad(a_loss)(pa, pg)
             upd, oa = opt.update(ga, oa, pa)
             pa = optax.apply_updates(pa, upd)
-            gg = jax.grad(gyr_loss)(pg, pa)
+            gg = jax.grad(g_loss)(pg, pa)
             upd, og = opt.update(gg, og, pg)
             pg = optax.apply_updates(pg, upd)
             return pa, pg, oa, og
 
         pa, pg, oa, og = jax.lax.fori_loop(0, nn_hp.steps, train, (st.params_a, st.params_g, st.opt_a, st.opt_g))
-        new = NNState(filt, pa, pg, oa, og, buf_a, buf_g, buf_w, st.count + 1)
-        return new, (filt.theta, pa, pg)
+        new = NNState(fs, pa, pg, oa, og, buf_a, buf_g, buf_w, st.count + 1)
+        return new, (fs.theta, pa, pg)
 
     return jax.lax.scan(step, st0, (batch.u_acc, batch.u_gyr, batch.mask))
 
 
 online_nn_scan_jit = jax.jit(online_nn_scan, static_argnames=("kind", "buffer_size"))
-
-
-__all__ = [
-    "Calib",
-    "KINDS",
-    "NNOnlineHP",
-    "NNState",
-    "OnlineHP",
-    "OnlineState",
-    "SequenceBatch",
-    "ZeroLastMLP",
-    "calibrate_acc",
-    "calibrate_gyr",
-    "fit_online_recording",
-    "init_state",
-    "n_params",
-    "nn_calibrate_acc",
-    "nn_calibrate_gyr",
-    "online_nn_scan",
-    "online_nn_scan_jit",
-    "online_pass",
-    "online_scan",
-    "per_param",
-    "predict",
-    "sequence_residuals",
-    "spec_sequences",
-    "tangent_basis",
-    "thesis_acc_loss",
-    "thesis_gyro_loss",
-    "to_affine",
-    "unpack",
-]

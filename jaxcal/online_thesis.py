@@ -31,8 +31,16 @@ to the next (as with repeated Keras ``fit`` calls on one compiled model); the in
 its own Adam state. Every update step uses the whole sequence (one batch).
 
 The whole algorithm, initial training included, is one ``jit``: :func:`run_online_thesis` for a
-simulated :class:`~jaxcal.simulate.Dataset2` (with validation errors) and
-:func:`fit_online_thesis_recording` for a recording split into sequences (no labels).
+:class:`~jaxcal.sequences.Dataset2` (with validation errors; simulated by
+:func:`jaxcal.simulate.dataset2`) and :func:`fit_online_thesis_recording` for a recording split
+into sequences (no labels).
+
+The per-sequence losses :func:`gyro_loss` (eq. 4.10) and :func:`acc_loss` (eq. 4.13) are the only
+implementation of the thesis's losses in jaxcal; :mod:`jaxcal.online`'s NN variant averages them
+over its replay buffer with ``vmap``.
+
+Dimension letters: ``M`` sequences, ``N`` samples per sequence, ``L`` samples of a recording or
+test set.
 """
 
 from __future__ import annotations
@@ -42,17 +50,36 @@ from typing import Any, Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
-from jaxtyping import Array, Float, Int
+from jaxtyping import Float, Int, Real
 
+from jaxcal.arrays import Array
+from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS
 from jaxcal.metrics import euclidean_error, mse, sequence_acc_error, sequence_gyro_error
 from jaxcal.nn import MLP, THESIS_LEAKY_SLOPE, THESIS_ONLINE_WIDTHS, init_mlp
 from jaxcal.normalise import Bounds, bounds_from_spec, normalise
-from jaxcal.recording import sequence_bounds
 from jaxcal.rotation import compose, rotation_from_rate
 from jaxcal.sensor import Diag, spec_convert
-from jaxcal.simulate.dataset2 import ACC_RANGE_G, GYR_RANGE_RADS, Dataset2, Sequences
+from jaxcal.sequences import Dataset2, Sequences, split_equal
+
+__all__ = [
+    "INIT_EVERY",
+    "ONLINE_MLP",
+    "OnlineThesisHParams",
+    "OnlineThesisResult",
+    "acc_bounds",
+    "acc_loss",
+    "calibrate_acc",
+    "calibrate_gyr",
+    "default_hparams",
+    "fit_online_thesis_recording",
+    "gyr_bounds",
+    "gyro_loss",
+    "run_dataset",
+    "run_online_thesis",
+    "stack_hparams",
+    "test_set_errors",
+]
 
 Params = Any
 Convention = Literal["physical", "printed"]
@@ -117,10 +144,10 @@ class OnlineThesisResult(NamedTuple):
     gyr_params0: Params
     init_loss_acc: Float[Array, ""]
     init_loss_gyr: Float[Array, ""]
-    gyr_loss: Float[Array, "M"]
-    acc_loss: Float[Array, "M"]
-    e_g: Float[Array, "M1"]
-    e_a: Float[Array, "M1"]
+    gyr_loss: Float[Array, " M"]
+    acc_loss: Float[Array, " M"]
+    e_g: Float[Array, " M+1"]
+    e_a: Float[Array, " M+1"]
 
 
 def default_hparams(key: jax.Array, **overrides: Any) -> OnlineThesisHParams:
@@ -138,26 +165,50 @@ def stack_hparams(hps: list[OnlineThesisHParams]) -> OnlineThesisHParams:
 
 
 def acc_bounds(spec: Diag, full_range: float = ACC_RANGE_G) -> Bounds:
-    """Eq. 3.6 bounds of the accelerometer input (range +-2 g by default)."""
+    """Eq. 3.6 bounds of the accelerometer input (range +-2 g by default).
+
+    Args:
+        spec: datasheet model of the accelerometer (``s`` LSB per g, ``b`` LSB).
+        full_range: ``r`` of the ``+-r`` input range (g).
+    """
     return bounds_from_spec(spec, full_range)
 
 
 def gyr_bounds(spec: Diag, full_range: float = GYR_RANGE_RADS) -> Bounds:
-    """Eq. 3.6 bounds of the gyroscope input (range +-250 deg/s, in rad/s, by default)."""
+    """Eq. 3.6 bounds of the gyroscope input (range +-250 deg/s, in rad/s, by default).
+
+    Args:
+        spec: datasheet model of the gyroscope (``s`` LSB per rad/s, ``b`` LSB).
+        full_range: ``r`` of the ``+-r`` input range (rad/s).
+    """
     return bounds_from_spec(spec, full_range)
 
 
 def calibrate_acc(
-    params: Params, raw: Float[Array, "... 3"], spec: Diag, full_range: float = ACC_RANGE_G
+    params: Params, raw: Real[Array, "... 3"], spec: Diag, full_range: float = ACC_RANGE_G
 ) -> Float[Array, "... 3"]:
-    """``NN_a``: raw accelerometer counts (LSB) -> calibrated specific force (g)."""
+    """``NN_a``: raw accelerometer counts (LSB) -> calibrated specific force (g).
+
+    Args:
+        params: ``NN_a`` parameters (traced).
+        raw: (..., 3) raw counts (LSB).
+        spec: datasheet model (eq. 3.6 bounds).
+        full_range: ``r`` of the ``+-r`` input range (g).
+    """
     return ONLINE_MLP.apply({"params": params}, normalise(raw, acc_bounds(spec, full_range)))
 
 
 def calibrate_gyr(
-    params: Params, raw: Float[Array, "... 3"], spec: Diag, full_range: float = GYR_RANGE_RADS
+    params: Params, raw: Real[Array, "... 3"], spec: Diag, full_range: float = GYR_RANGE_RADS
 ) -> Float[Array, "... 3"]:
-    """``NN_phi``: raw gyroscope counts (LSB) -> calibrated angular rate (rad/s)."""
+    """``NN_phi``: raw gyroscope counts (LSB) -> calibrated angular rate (rad/s).
+
+    Args:
+        params: ``NN_phi`` parameters (traced).
+        raw: (..., 3) raw counts (LSB).
+        spec: datasheet model (eq. 3.6 bounds).
+        full_range: ``r`` of the ``+-r`` input range (rad/s).
+    """
     return ONLINE_MLP.apply({"params": params}, normalise(raw, gyr_bounds(spec, full_range)))
 
 
@@ -208,6 +259,14 @@ def acc_loss(
     ``a_phi,N = R_tot^T a_c,1`` (physical; ``R_tot a_c,1`` if printed) and
     ``L = w (1/3)|a_phi,N - a_c,N|^2 + (1 - w) |1 - |a_c,N||``.
     Gradients flow into every argument; :func:`run_online_thesis` stops them at ``a_c1``, ``phi_c``.
+
+    Args:
+        a_c1: (3,) calibrated specific force at the first sample (g).
+        a_cN: (3,) calibrated specific force at the last sample (g).
+        phi_c: (N, 3) calibrated angular rates of the sequence (rad/s).
+        dt: sample period (s).
+        w: weight ``w`` of eq. 4.13 (traced).
+        convention: rotation sign (see module docstring; a Python string, static).
     """
     r_tot = compose(rotation_from_rate(phi_c[:-1], dt))
     a_phi = _rotate(r_tot, a_c1, convention)
@@ -233,6 +292,7 @@ def _adam_steps(loss_fn, params, opt_state, opt, n_steps):
 
 
 def _init_params(key: jax.Array, scale) -> Params:
+    """Flax LeCun-normal initial weights of the Fig. 4.5 network, multiplied by ``scale``."""
     return jax.tree.map(lambda p: scale * p, init_mlp(key, ONLINE_MLP))
 
 
@@ -310,7 +370,15 @@ def _online_thesis(
     )
 
 
-def _run_dataset(data: Dataset2, hp: OnlineThesisHParams, init_every: int = INIT_EVERY) -> OnlineThesisResult:
+def run_dataset(data: Dataset2, hp: OnlineThesisHParams, init_every: int = INIT_EVERY) -> OnlineThesisResult:
+    """The pure (un-jitted) :func:`run_online_thesis`, to call inside a caller's ``jit``/``vmap``
+    (e.g. vmapped over datasets and hyperparameters); arguments as there.
+
+    Args:
+        data: :class:`~jaxcal.sequences.Dataset2` (traced).
+        hp: :class:`OnlineThesisHParams` (traced).
+        init_every: (static: it sets a shape) stride of the sequences used for the initial training (thesis: 10).
+    """
     dt = jnp.asarray(data.dt, dtype=jnp.float32)
     return _online_thesis(
         data.train.acc, data.train.gyr, dt, data.acc_spec, data.gyr_spec, hp, data.val, init_every
@@ -318,11 +386,11 @@ def _run_dataset(data: Dataset2, hp: OnlineThesisHParams, init_every: int = INIT
 
 
 #: ``run_online_thesis(data, hp)``: the whole algorithm on a simulated Dataset 2, one ``jit``.
-run_online_thesis = jax.jit(_run_dataset, static_argnames="init_every")
+run_online_thesis = jax.jit(run_dataset, static_argnames="init_every")
 run_online_thesis.__doc__ = """Run the thesis's online algorithm on Dataset 2 (one ``jit``).
 
 Args:
-    data: :class:`~jaxcal.simulate.Dataset2` (training sequences are processed in order; the
+    data: :class:`~jaxcal.sequences.Dataset2` (training sequences are processed in order; the
         validation sequences give ``e_g``, ``e_a`` at every iteration; no other label is used).
     hp: :class:`OnlineThesisHParams` (all traced: ``jax.vmap(run_online_thesis, (None, 0))``
         runs several trainings at once).
@@ -340,40 +408,10 @@ _run_sequences = jax.jit(
 )
 
 
-def split_sequences(
-    x: Float[Array, "L 3"] | np.ndarray, seq: Int[Array, "L"] | np.ndarray
-) -> np.ndarray:
-    """Split a recording into its sequences: ``(L, 3)`` -> ``(M, N, 3)``.
-
-    ``seq`` holds one id per sample; samples of one sequence must be contiguous and every sequence
-    must have the same length ``N >= 2``. Raises ``ValueError`` naming the offending sequence
-    otherwise (non-contiguous id, unequal lengths).
-    """
-    x = np.asarray(x)
-    seq = np.asarray(seq)
-    if seq.ndim != 1 or x.ndim != 2 or x.shape[0] != seq.shape[0] or x.shape[1] != 3:
-        raise ValueError(f"expected samples (L, 3) and seq (L,), got {x.shape} and {seq.shape}")
-    starts, ends = sequence_bounds(seq)
-    ids = seq[starts]
-    if len(np.unique(ids)) != len(ids):
-        dup = ids[np.flatnonzero(np.bincount(np.unique(ids, return_inverse=True)[1]) > 1)[0]]
-        raise ValueError(f"seq id {dup} is not contiguous: samples of one sequence must be adjacent")
-    lengths = ends - starts
-    if np.any(lengths != lengths[0]):
-        bad = int(np.flatnonzero(lengths != lengths[0])[0])
-        raise ValueError(
-            f"sequences must have equal length: seq id {ids[0]} has {lengths[0]} samples, "
-            f"seq id {ids[bad]} has {lengths[bad]}"
-        )
-    if lengths[0] < 2:
-        raise ValueError("every sequence needs at least 2 samples")
-    return x.reshape(len(ids), int(lengths[0]), 3)
-
-
 def fit_online_thesis_recording(
     acc: Float[Array, "L 3"],
     gyr: Float[Array, "L 3"],
-    seq: Int[Array, "L"],
+    seq: Int[Array, " L"],
     dt: float,
     acc_spec: Diag,
     gyr_spec: Diag,
@@ -385,7 +423,7 @@ def fit_online_thesis_recording(
 
     The recording must consist of sequences, each a rotation about the sensor's centre between two
     static orientations (section 4.2): contiguous ``seq`` ids of equal length (see
-    :func:`split_sequences`, which raises ``ValueError`` otherwise). Sequences are processed in
+    :func:`jaxcal.sequences.split_equal`, which raises ``ValueError`` otherwise). Sequences are processed in
     the order they appear; every tenth is also used for the initial training.
 
     Args:
@@ -401,8 +439,8 @@ def fit_online_thesis_recording(
         :class:`OnlineThesisResult` (``e_g``, ``e_a`` are NaN: no labels). Apply it with
         :func:`calibrate_acc` / :func:`calibrate_gyr` and the same specs.
     """
-    a = jnp.asarray(split_sequences(acc, seq), dtype=jnp.float32)
-    g = jnp.asarray(split_sequences(gyr, seq), dtype=jnp.float32)
+    a = jnp.asarray(split_equal(acc, seq), dtype=jnp.float32)
+    g = jnp.asarray(split_equal(gyr, seq), dtype=jnp.float32)
     hp = default_hparams(key) if hp is None else hp._replace(key=key)
     dt_arr = jnp.asarray(dt, dtype=jnp.float32)
     return _run_sequences(a, g, dt_arr, acc_spec, gyr_spec, hp, init_every=init_every)
@@ -410,29 +448,14 @@ def fit_online_thesis_recording(
 
 def test_set_errors(
     result_params: tuple[Params, Params], data: Dataset2
-) -> tuple[Float[Array, "La"], Float[Array, "Lg"]]:
-    """Per-sample Euclidean errors (eq. 3.8) on the Dataset 2 test sets: ``(acc g, gyr rad/s)``."""
+) -> tuple[Float[Array, " La"], Float[Array, " Lg"]]:
+    """Per-sample Euclidean errors (eq. 3.8) on the Dataset 2 test sets: ``(acc g, gyr rad/s)``.
+
+    Args:
+        result_params: ``(NN_a, NN_phi)`` parameters, e.g. ``(result.acc_params, result.gyr_params)``.
+        data: the :class:`~jaxcal.sequences.Dataset2` whose test sets and specs are used.
+    """
     acc_p, gyr_p = result_params
     e_a = euclidean_error(data.test_acc.true, calibrate_acc(acc_p, data.test_acc.raw, data.acc_spec))
     e_g = euclidean_error(data.test_gyr.true, calibrate_gyr(gyr_p, data.test_gyr.raw, data.gyr_spec))
     return e_a, e_g
-
-
-__all__ = [
-    "INIT_EVERY",
-    "ONLINE_MLP",
-    "OnlineThesisHParams",
-    "OnlineThesisResult",
-    "acc_bounds",
-    "acc_loss",
-    "calibrate_acc",
-    "calibrate_gyr",
-    "default_hparams",
-    "fit_online_thesis_recording",
-    "gyr_bounds",
-    "gyro_loss",
-    "run_online_thesis",
-    "split_sequences",
-    "stack_hparams",
-    "test_set_errors",
-]

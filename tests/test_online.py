@@ -1,4 +1,5 @@
-"""Tests of jaxcal.online (streaming self-calibration), jaxcal.fisher and jaxcal.simulate.drift.
+"""Tests of jaxcal.online (streaming self-calibration), jaxcal.fisher, jaxcal.sequences (padding)
+and jaxcal.simulate.drift.
 
 Truth comes from the simulators' hidden parameters, closed forms and invariants.
 """
@@ -13,18 +14,18 @@ import numpy as np
 import pytest
 
 from jaxcal import fisher
+from jaxcal import online_thesis as ot
 from jaxcal.online import (
     OnlineHP,
-    calibrate_acc,
-    calibrate_gyr,
     fit_online_recording,
-    init_state,
-    n_params,
+    make_filter,
     online_pass,
-    to_affine,
-    unpack,
+    thesis_acc_loss,
+    thesis_gyro_loss,
+    to_linear_cal,
 )
-from jaxcal.sensor import Diag, affine_inverse
+from jaxcal.sensor import Diag, LinearCal
+from jaxcal.sequences import pad_with_mask
 from jaxcal.simulate import Dataset2Config, dataset2
 from jaxcal.simulate.drift import DriftConfig, simulate_drift, temperature
 
@@ -47,22 +48,21 @@ def _truth_theta(d):
     return np.concatenate([sa / a.s - 1, a.b / a.s, sg / g.s - 1, g.b / g.s]).astype(np.float64)
 
 
-def test_recovers_true_parameters_near_quantisation_floor(small_d2, small_pass):
+def test_recovers_true_parameters_near_quantisation_floor(x64, small_d2, small_pass):
     d = small_d2
     state, hist = small_pass
-    with jax.enable_x64(True):
-        am, gm = to_affine(state.theta, "diag", d.acc_spec, d.gyr_spec)
-        am = jax.tree.map(np.asarray, am)
-        gm = jax.tree.map(np.asarray, gm)
+    am, gm = to_linear_cal(state.theta, "diag", d.acc_spec, d.gyr_spec)
+    am = jax.tree.map(np.asarray, am)
+    gm = jax.tree.map(np.asarray, gm)
     # Tolerances from the quantisation noise: one LSB of rounding spread over >= 1e4 samples
     # leaves parameter errors far below 1 LSB; the spec starts 3 % / hundreds of LSB away.
-    np.testing.assert_allclose(np.diag(am.S), np.asarray(d.acc_true_model.s), rtol=2e-5)
-    np.testing.assert_allclose(np.diag(gm.S), np.asarray(d.gyr_true_model.s), rtol=1e-4)
+    np.testing.assert_allclose(1.0 / np.diag(am.A), np.asarray(d.acc_true_model.s), rtol=2e-5)
+    np.testing.assert_allclose(1.0 / np.diag(gm.A), np.asarray(d.gyr_true_model.s), rtol=1e-4)
     np.testing.assert_allclose(am.b, np.asarray(d.acc_true_model.b), atol=0.5)
     np.testing.assert_allclose(gm.b, np.asarray(d.gyr_true_model.b), atol=0.5)
     # off-diagonals of a diag model are zero by construction; test error near the floor
-    e_acc = np.mean(np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1))
-    e_gyr = np.mean(np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1))
+    e_acc = np.mean(np.linalg.norm(am.apply(np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1))
+    e_gyr = np.mean(np.linalg.norm(gm.apply(np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1))
     a, g = d.acc_true_model, d.gyr_true_model
     f_acc = np.mean(np.linalg.norm((np.asarray(d.test_acc.raw) - a.b) / a.s - np.asarray(d.test_acc.true), axis=-1))
     f_gyr = np.mean(np.linalg.norm((np.asarray(d.test_gyr.raw) - g.b) / g.s - np.asarray(d.test_gyr.true), axis=-1))
@@ -76,32 +76,44 @@ def test_state_is_fixed_size(small_d2, small_pass):
     """The filter's state does not grow with the sequences seen: 3 sequences (shapes traced, not
     compiled) and 100 (run) give the same state shapes."""
     d = small_d2
-    assert jax.tree.map(lambda x: x.shape, init_state("affine", OnlineHP())) == ((21,), (21, 21), ())
+    assert jax.tree.map(lambda x: x.shape, make_filter("affine").init(OnlineHP())) == ((21,), (21, 21), ())
     kind = "diag"
+    n_params = make_filter(kind).n_params
     s100, h100 = small_pass
     s3, h3 = jax.eval_shape(
         lambda a, g: online_pass(a, g, d.dt, d.acc_spec, d.gyr_spec, OnlineHP(), kind), d.train.acc[:3], d.train.gyr[:3]
     )
     shapes3 = jax.tree.map(lambda x: x.shape, s3)
     assert shapes3 == jax.tree.map(lambda x: x.shape, s100)
-    assert shapes3.theta == (n_params(kind),) and shapes3.info == (n_params(kind),) * 2
-    assert h3.shape == (3, n_params(kind))
-    assert int(s100.count) == 100 and h100.shape == (100, n_params(kind))
+    assert shapes3.theta == (n_params,) and shapes3.info == (n_params,) * 2
+    assert h3.shape == (3, n_params)
+    assert int(s100.count) == 100 and h100.shape == (100, n_params)
 
 
-def test_unpack_affine_gauge_and_to_affine_roundtrip():
-    with jax.enable_x64(True):
-        theta = jax.random.normal(jax.random.PRNGKey(2), (21,), jnp.float64) * 0.01
-        c = unpack(theta, "affine")
-        assert np.allclose(np.tril(np.asarray(c.K_a), -1), 0.0)  # upper-triangular gauge fix
-        spec = Diag(jnp.array([16000.0, 16500.0, 16300.0]), jnp.array([10.0, -20.0, 5.0]))
-        gspec = Diag(jnp.full(3, 7500.0), jnp.zeros(3))
-        am, gm = to_affine(theta, "affine", spec, gspec)
-        y = jax.random.normal(jax.random.PRNGKey(3), (5, 3), jnp.float64) * 1e4
-        direct = calibrate_acc(theta, (y - spec.b) / spec.s, "affine")
-        np.testing.assert_allclose(affine_inverse(am, y), direct, rtol=1e-10, atol=1e-12)
-        direct_g = calibrate_gyr(theta, (y - gspec.b) / gspec.s, "affine")
-        np.testing.assert_allclose(affine_inverse(gm, y), direct_g, rtol=1e-10, atol=1e-12)
+def test_make_filter_is_static_and_cached():
+    """One Filter per kind (hashable, cached: a static jit argument that compiles once per kind)."""
+    assert make_filter("diag") is make_filter("diag")
+    assert make_filter("diag") != make_filter("affine")
+    assert (make_filter("diag").n_params, make_filter("affine").n_params) == (12, 21)
+    hash(make_filter("affine"))
+    with pytest.raises(ValueError, match="kind must be one of"):
+        make_filter("full")
+
+
+def test_unpack_affine_gauge_and_to_linear_cal_roundtrip(x64):
+    filt = make_filter("affine")
+    theta = jax.random.normal(jax.random.PRNGKey(2), (21,), jnp.float64) * 0.01
+    c = filt.unpack(theta)
+    assert np.allclose(np.tril(np.asarray(c.K_a), -1), 0.0)  # upper-triangular gauge fix
+    spec = Diag(jnp.array([16000.0, 16500.0, 16300.0]), jnp.array([10.0, -20.0, 5.0]))
+    gspec = Diag(jnp.full(3, 7500.0), jnp.zeros(3))
+    am, gm = to_linear_cal(theta, "affine", spec, gspec)
+    assert isinstance(am, LinearCal) and isinstance(gm, LinearCal)
+    y = jax.random.normal(jax.random.PRNGKey(3), (5, 3), jnp.float64) * 1e4
+    direct = filt.calibrate_acc(theta, (y - spec.b) / spec.s)
+    np.testing.assert_allclose(am.apply(y), direct, rtol=1e-10, atol=1e-12)
+    direct_g = filt.calibrate_gyr(theta, (y - gspec.b) / gspec.s)
+    np.testing.assert_allclose(gm.apply(y), direct_g, rtol=1e-10, atol=1e-12)
 
 
 def test_fit_online_recording_flat_arrays(small_d2):
@@ -112,14 +124,40 @@ def test_fit_online_recording_flat_arrays(small_d2):
     seq = np.repeat(np.arange(m), n)
     t = np.arange(m * n) * d.dt
     am, gm = fit_online_recording(acc, gyr, seq, t, d.acc_spec, d.gyr_spec, OnlineHP(), kind="affine")
-    e = np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
-    eg = np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
+    assert isinstance(am, LinearCal) and isinstance(gm, LinearCal)
+    e = np.linalg.norm(am.apply(np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
+    eg = np.linalg.norm(gm.apply(np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
     assert e < 1e-4 and eg < 2e-4  # g, rad/s: ~3 x the quantisation floor with 60 sequences
     # no datasheet values: initialised from the data (median norm, static-end medians)
     am, gm = fit_online_recording(acc, gyr, seq, d.dt, None, None, OnlineHP(), kind="affine")
-    e = np.linalg.norm(affine_inverse(am, np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
-    eg = np.linalg.norm(affine_inverse(gm, np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
+    e = np.linalg.norm(am.apply(np.asarray(d.test_acc.raw, np.float64)) - np.asarray(d.test_acc.true), axis=-1).mean()
+    eg = np.linalg.norm(gm.apply(np.asarray(d.test_gyr.raw, np.float64)) - np.asarray(d.test_gyr.true), axis=-1).mean()
     assert e < 1e-4 and eg < 2e-4
+
+
+def test_pad_with_mask_unequal_sequences():
+    x = np.arange(7 * 3, dtype=np.float32).reshape(7, 3)
+    seq = np.array([4, 4, 4, 1, 1, 9, 9])
+    padded, mask = pad_with_mask(x, seq)
+    assert padded.shape == (3, 3, 3) and padded.dtype == np.float64
+    np.testing.assert_array_equal(mask, [[1, 1, 1], [1, 1, 0], [1, 1, 0]])
+    np.testing.assert_array_equal(padded[1, :2], x[3:5])
+    np.testing.assert_array_equal(padded[1, 2], x[4])  # padding repeats the last sample
+    p1, m1 = pad_with_mask(x[:, 0], seq)  # any trailing shape
+    assert p1.shape == (3, 3)
+    np.testing.assert_array_equal(m1, mask)
+
+
+def test_buffer_losses_are_weighted_means_of_the_thesis_losses():
+    """The NN variant's losses are eq. 4.10 / 4.13 of :mod:`jaxcal.online_thesis`, per sequence,
+    averaged over the filled buffer slots (weight 0 slots ignored)."""
+    d = dataset2(jax.random.PRNGKey(9), Dataset2Config(n_train=3, n_val=1))
+    a_c, w_c = d.train.acc_true * 1.01, d.train.gyr_true * 0.99
+    wts = jnp.array([1.0, 0.0, 1.0])
+    g = [ot.gyro_loss(w_c[i], a_c[i], d.dt) for i in (0, 2)]
+    a = [ot.acc_loss(a_c[i, 0], a_c[i, -1], w_c[i], d.dt, 0.9) for i in (0, 2)]
+    np.testing.assert_allclose(thesis_gyro_loss(a_c, w_c, d.dt, wts), (g[0] + g[1]) / 2, rtol=1e-6)
+    np.testing.assert_allclose(thesis_acc_loss(a_c, w_c, d.dt, wts, 0.9), (a[0] + a[1]) / 2, rtol=1e-6)
 
 
 def test_drift_truth_follows_temperature_model():
@@ -152,45 +190,42 @@ def test_drift_noise_level():
     assert abs(np.std(x) / expected - 1) < 0.05
 
 
-def test_fisher_linear_toy_equals_closed_form():
-    with jax.enable_x64(True):
-        a = jax.random.normal(jax.random.PRNGKey(6), (40, 3), jnp.float64)
-        sigma = 0.3
-        model = lambda p: a @ p  # noqa: E731
-        j = jax.jacfwd(model)(jnp.zeros(3, jnp.float64))
-        np.testing.assert_allclose(fisher.gaussian_fisher(j, sigma=sigma), a.T @ a / sigma**2, rtol=1e-12)
-        cov = jnp.diag(jnp.linspace(0.1, 1.0, 40))
-        np.testing.assert_allclose(fisher.gaussian_fisher(j, cov), a.T @ jnp.linalg.inv(cov) @ a, rtol=1e-10)
-        # Schur complement = inverse of the (theta, theta) block of the full inverse
-        f = fisher.gaussian_fisher(j, sigma=sigma)
-        np.testing.assert_allclose(fisher.schur_marginal(f, 2), jnp.linalg.inv(jnp.linalg.inv(f)[:2, :2]), rtol=1e-10)
+def test_fisher_linear_toy_equals_closed_form(x64):
+    a = jax.random.normal(jax.random.PRNGKey(6), (40, 3), jnp.float64)
+    sigma = 0.3
+    model = lambda p: a @ p  # noqa: E731
+    j = jax.jacfwd(model)(jnp.zeros(3, jnp.float64))
+    np.testing.assert_allclose(fisher.gaussian_fisher(j, sigma=sigma), a.T @ a / sigma**2, rtol=1e-12)
+    cov = jnp.diag(jnp.linspace(0.1, 1.0, 40))
+    np.testing.assert_allclose(fisher.gaussian_fisher(j, cov), a.T @ jnp.linalg.inv(cov) @ a, rtol=1e-10)
+    # Schur complement = inverse of the (theta, theta) block of the full inverse
+    f = fisher.gaussian_fisher(j, sigma=sigma)
+    np.testing.assert_allclose(fisher.schur_marginal(f, 2), jnp.linalg.inv(jnp.linalg.inv(f)[:2, :2]), rtol=1e-10)
 
 
-def test_expected_error_closed_form():
+def test_expected_error_closed_form(x64):
     # isotropic 3-D Gaussian: E|e| = sigma * 2 sqrt(2 / pi)
-    with jax.enable_x64(True):
-        sigma = 0.2
-        cov = sigma**2 * jnp.eye(3, dtype=jnp.float64)
-        e = fisher.expected_error(jax.random.PRNGKey(7), cov, lambda th: th[None, :], jnp.zeros(3, jnp.float64), n_draws=40000)
-        assert abs(float(e) / (sigma * 2 * math.sqrt(2 / math.pi)) - 1) < 0.01
+    sigma = 0.2
+    cov = sigma**2 * jnp.eye(3, dtype=jnp.float64)
+    e = fisher.expected_error(jax.random.PRNGKey(7), cov, lambda th: th[None, :], jnp.zeros(3, jnp.float64), n_draws=40000)
+    assert abs(float(e) / (sigma * 2 * math.sqrt(2 / math.pi)) - 1) < 0.01
 
 
-def test_protocol_crb_consistent_with_filter_scatter():
+def test_protocol_crb_consistent_with_filter_scatter(x64):
     """The filter's parameter scatter over seeds is of the order of the Cramer-Rao bound."""
     cfg = DriftConfig(n_seq=30, duration_s=30.0, temp_rise=0.0, gyr_noise_density=0.0)
     errs = []
     pf = jax.jit(fisher.protocol_fisher, static_argnames=("kind", "batch_size"))
-    with jax.enable_x64(True):
-        for seed in range(2):
-            dd = simulate_drift(jax.random.PRNGKey(100 + seed), cfg)
-            sig = cfg.acc_noise_density * math.sqrt(cfg.motion.fs)
-            st, _ = online_pass(dd.seqs.acc, dd.seqs.gyr, dd.dt, dd.acc_spec, dd.gyr_spec, OnlineHP(sigma_acc=sig), "diag")
-            a0, g0 = dd.truth.acc_model0, dd.truth.gyr_model0
-            sa, sg = dd.acc_spec.s, dd.gyr_spec.s
-            th = jnp.concatenate([sa / a0.s - 1, a0.b / a0.s, sg / g0.s - 1, g0.b / g0.s]).astype(jnp.float64)
-            ug = (jnp.asarray(dd.seqs.gyr_true, jnp.float64) * g0.s + g0.b) / sg
-            f = pf(th, jnp.asarray(dd.seqs.acc_true[:, 0], jnp.float64), ug, dd.dt, sig, 0.0, kind="diag", batch_size=30)
-            sd = np.sqrt(np.diag(np.linalg.inv(np.asarray(f))))
-            errs.append(np.asarray(st.theta - th) / sd)
+    for seed in range(2):
+        dd = simulate_drift(jax.random.PRNGKey(100 + seed), cfg)
+        sig = cfg.acc_noise_density * math.sqrt(cfg.motion.fs)
+        st, _ = online_pass(dd.seqs.acc, dd.seqs.gyr, dd.dt, dd.acc_spec, dd.gyr_spec, OnlineHP(sigma_acc=sig), "diag")
+        a0, g0 = dd.truth.acc_model0, dd.truth.gyr_model0
+        sa, sg = dd.acc_spec.s, dd.gyr_spec.s
+        th = jnp.concatenate([sa / a0.s - 1, a0.b / a0.s, sg / g0.s - 1, g0.b / g0.s]).astype(jnp.float64)
+        ug = (jnp.asarray(dd.seqs.gyr_true, jnp.float64) * g0.s + g0.b) / sg
+        f = pf(th, jnp.asarray(dd.seqs.acc_true[:, 0], jnp.float64), ug, dd.dt, sig, 0.0, kind="diag", batch_size=30)
+        sd = np.sqrt(np.diag(np.linalg.inv(np.asarray(f))))
+        errs.append(np.asarray(st.theta - th) / sd)
     z = np.concatenate(errs)
     assert np.sqrt(np.mean(z**2)) < 3.0  # normalised errors: ~1 for an efficient estimator

@@ -12,6 +12,7 @@ import pytest
 from jaxcal import online_thesis as ot
 from jaxcal.metrics import euclidean_error
 from jaxcal.sensor import diag_inverse, spec_convert
+from jaxcal.sequences import first_repeated_run, split_equal
 from jaxcal.simulate import Dataset2Config, dataset2
 
 # Small Dataset 2: 200 training sequences, every fourth (50, as in the thesis's 500 / 10) used for
@@ -38,14 +39,13 @@ def _true_calibration(data):
     return a_c, phi_c
 
 
-def test_gyro_loss_zero_for_true_calibration_physical_only(exact_data):
+def test_gyro_loss_zero_for_true_calibration_physical_only(x64, exact_data):
     """Eq. 4.10 with the true inverse model: float noise in the physical convention, not printed."""
     a_c, phi_c = _true_calibration(exact_data)
     dt = exact_data.dt
-    with jax.enable_x64(True):
-        a64, p64 = jnp.asarray(a_c, jnp.float64), jnp.asarray(phi_c, jnp.float64)
-        phys = jax.vmap(lambda p, a: ot.gyro_loss(p, a, dt, "physical"))(p64, a64)
-        printed = jax.vmap(lambda p, a: ot.gyro_loss(p, a, dt, "printed"))(p64, a64)
+    a64, p64 = jnp.asarray(a_c, jnp.float64), jnp.asarray(phi_c, jnp.float64)
+    phys = jax.vmap(lambda p, a: ot.gyro_loss(p, a, dt, "physical"))(p64, a64)
+    printed = jax.vmap(lambda p, a: ot.gyro_loss(p, a, dt, "printed"))(p64, a64)
     # Truth was simulated in float32: residuals ~1e-7 g, squared ~1e-14.
     assert float(jnp.max(phys)) < 1e-12
     # Printed sign: residual ~ 2 |w dt| ~ 1e-3 g per step on these sequences.
@@ -76,7 +76,7 @@ def test_acc_loss_zero_for_true_calibration_physical_only(exact_data):
 def test_scan_is_one_scan_over_sequences(small_data):
     """The adaptive loop is a single lax.scan of length n_train inside the jitted function."""
     hp = ot.default_hparams(jax.random.PRNGKey(0), **FAST_HP)
-    jaxpr = jax.make_jaxpr(partial(ot._run_dataset, init_every=INIT_EVERY))(small_data, hp).jaxpr
+    jaxpr = jax.make_jaxpr(partial(ot.run_dataset, init_every=INIT_EVERY))(small_data, hp).jaxpr
     scans = [e for e in jaxpr.eqns if e.primitive.name == "scan"]
     assert [int(e.params["length"]) for e in scans] == [SMALL.n_train]
 
@@ -132,7 +132,7 @@ def test_initial_training_matches_spec_conversion(small_data, small_run):
     assert mean_norm(dg) < 0.05 * mean_norm(spec_g)
 
 
-def test_vmap_over_hparams_equals_separate_runs(small_data):
+def test_vmap_over_hparams_equals_separate_runs(x64, small_data):
     """Two trainings (different seeds and learning rates) vmapped == the two run separately.
 
     Compared where the invariant is exact: float64 and a 24-sequence horizon. (In float32 over 200
@@ -144,19 +144,18 @@ def test_vmap_over_hparams_equals_separate_runs(small_data):
     wrong batching axis moves the curves by > 10 %.
     """
     m = 24
-    with jax.enable_x64(True):
-        f64 = lambda x: jnp.asarray(x, jnp.float64) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating) else x  # noqa: E731
-        short = small_data._replace(train=jax.tree.map(lambda x: x[:m], small_data.train),
-                                    val=jax.tree.map(lambda x: x[:4], small_data.val))
-        data = jax.tree.map(f64, short)
-        hps = [
-            ot.default_hparams(jax.random.PRNGKey(1), init_epochs=50, gyr_steps=5, acc_steps=5),
-            ot.default_hparams(jax.random.PRNGKey(2), init_epochs=33, gyr_lr=3e-4, acc_lr=3e-5, w=0.8,
-                               gyr_steps=2, acc_steps=5),
-        ]
-        run = partial(ot._run_dataset, init_every=INIT_EVERY)
-        batched = jax.jit(jax.vmap(run, in_axes=(None, 0)))(data, ot.stack_hparams(hps))
-        singles = [ot.run_online_thesis(data, hp, init_every=INIT_EVERY) for hp in hps]
+    f64 = lambda x: jnp.asarray(x, jnp.float64) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating) else x  # noqa: E731
+    short = small_data._replace(train=jax.tree.map(lambda x: x[:m], small_data.train),
+                                val=jax.tree.map(lambda x: x[:4], small_data.val))
+    data = jax.tree.map(f64, short)
+    hps = [
+        ot.default_hparams(jax.random.PRNGKey(1), init_epochs=50, gyr_steps=5, acc_steps=5),
+        ot.default_hparams(jax.random.PRNGKey(2), init_epochs=33, gyr_lr=3e-4, acc_lr=3e-5, w=0.8,
+                           gyr_steps=2, acc_steps=5),
+    ]
+    run = partial(ot.run_dataset, init_every=INIT_EVERY)
+    batched = jax.jit(jax.vmap(run, in_axes=(None, 0)))(data, ot.stack_hparams(hps))
+    singles = [ot.run_online_thesis(data, hp, init_every=INIT_EVERY) for hp in hps]
     assert batched.e_g.dtype == jnp.float64 and batched.e_g.shape == (2, m + 1)
     for i, single in enumerate(singles):
         for b, s in zip(jax.tree.leaves(batched), jax.tree.leaves(single)):
@@ -166,16 +165,18 @@ def test_vmap_over_hparams_equals_separate_runs(small_data):
     assert float(np.mean(other)) > 0.05
 
 
-def test_split_sequences_round_trip_and_errors():
+def test_split_equal_round_trip_and_errors():
     x = np.arange(4 * 5 * 3, dtype=np.float32).reshape(4, 5, 3)
     seq = np.repeat(np.array([7, 3, 9, 1]), 5)
-    np.testing.assert_array_equal(ot.split_sequences(x.reshape(-1, 3), seq), x)
+    np.testing.assert_array_equal(split_equal(x.reshape(-1, 3), seq), x)
+    assert first_repeated_run(seq) is None
     with pytest.raises(ValueError, match="equal length"):
-        ot.split_sequences(x.reshape(-1, 3)[:-1], seq[:-1])
+        split_equal(x.reshape(-1, 3)[:-1], seq[:-1])
     bad = seq.copy()
     bad[-5:] = 7  # id 7 appears again later: not contiguous
-    with pytest.raises(ValueError, match="contiguous"):
-        ot.split_sequences(x.reshape(-1, 3), bad)
+    assert first_repeated_run(bad) == 15
+    with pytest.raises(ValueError, match="seq id 7 is not contiguous"):
+        split_equal(x.reshape(-1, 3), bad)
 
 
 def test_recording_entry_point_equals_dataset_run(small_data, small_run):

@@ -36,15 +36,16 @@ Sensor (forward model, raw LSB)
       products ``c`` of 1-2.5 mg/g^2: a few mg at 1 g. The datasheet bounds nonlinearity by 0.5 %
       of full scale (best-fit straight line), i.e. up to ~10-20 mg at the +-2 g ends; a few mg at
       +-1 g is the expected size inside that bound. These unmodelled terms are what limits the
-      12-parameter linear model; they were sized so that its test error is ~2 mg, the thesis's
-      Table 3.1 regime (measured, not assumed: see ``results/offline.md``).
+      12-parameter linear model; they were sized to put its test error in the thesis's Table 3.1
+      regime (the measured error is in ``results/offline.md``).
     - ``noise_density_ug`` = 400 ug/sqrt(Hz) (MPU-6050 datasheet), ``bandwidth_hz`` = 44 Hz
       (its DLPF setting 3), so ``sigma_read`` = 400 ug x sqrt(44) = 2.65 mg = 43 LSB per read.
     - ``n_oversample`` = 32 reads averaged per orientation: 0.47 mg per axis after averaging.
       Each read is rounded to integer LSB before averaging, so ``acc`` is not integer-valued.
 
-    Noise + label error together give an irreducible test error (eq. 3.8, vs the labels) of about
-    0.9 mg mean for a perfect calibration, the ~1 mg floor the thesis's NN approaches.
+    Noise + label error together give an irreducible test error (eq. 3.8, vs the labels) for a
+    perfect calibration, the floor the thesis's NN approaches (measured: ``results/offline.md``,
+    "Floor").
 
 All parameters are fields of :class:`Dataset1Config`; the PRNG key drives only the orientations,
 label errors and noise, so one config is one sensor and different keys are different recordings
@@ -58,19 +59,41 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
+from jaxcal.constants import ACC_LSB_PER_G, ACC_RANGE_G  # ACC_RANGE_G re-exported (eq. 3.6 bounds of this sensor)
 from jaxcal.rotation import exp_so3, random_unit_vectors
 from jaxcal.sensor import Affine, Diag, affine_inverse
 
-ACC_SPEC_LSB_PER_G = 16384.0
-ACC_RANGE_G = 2.0
+__all__ = [
+    "ACC_RANGE_G",
+    "ACC_SPEC_LSB_PER_G",
+    "CROSS_PAIRS",
+    "Dataset1",
+    "Dataset1Config",
+    "NonlinearAccModel",
+    "Split",
+    "dataset1",
+    "measure",
+    "nested_subset_weights",
+    "nonlinear_forward",
+    "nonlinear_inverse",
+    "robot_labels",
+    "sensor_model",
+]
+
+ACC_SPEC_LSB_PER_G = ACC_LSB_PER_G
 # Index pairs (j, k), j < k, of the cross-axis product terms x_j x_k.
 CROSS_PAIRS = ((0, 1), (0, 2), (1, 2))
 
 
 class Dataset1Config(NamedTuple):
     """Every parameter of the Dataset 1 surrogate (module docstring gives sources).
+
+    Static: a plain Python value (hashable tuples). ``n_train``/``n_val``/``n_test`` and
+    ``n_oversample`` set array shapes, so under ``jit`` pass the config as a static argument or
+    close over it; the others become constants of the compiled function.
 
     Attributes:
         n_train, n_val, n_test: split sizes (thesis: 1000 / 184 / 184).
@@ -160,7 +183,12 @@ def sensor_model(config: Dataset1Config) -> NonlinearAccModel:
 
 
 def nonlinear_forward(model: NonlinearAccModel, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """Noise-free sensor output (LSB, not rounded) for true specific force ``x`` (g)."""
+    """Noise-free sensor output (LSB, not rounded) for true specific force ``x`` (g).
+
+    Args:
+        model: the simulated sensor.
+        x: (..., 3) true specific force (g).
+    """
     prods = jnp.stack([x[..., j] * x[..., k] for j, k in CROSS_PAIRS], axis=-1)
     x_nl = x + model.k2 * x**2 + model.k3 * x**3 + prods @ model.cross.T
     return x_nl @ model.affine.S.T + model.affine.b
@@ -173,6 +201,11 @@ def nonlinear_inverse(
 
     ``x = u - nl(x)`` with ``u = S^{-1} (y - b)``; the nonlinear terms are ~1e-3 of ``x``, so each
     iteration gains three digits and ``iters = 6`` is at float32 precision.
+
+    Args:
+        model: the simulated sensor.
+        y: (..., 3) noise-free outputs (LSB).
+        iters: fixed-point iterations (static: the loop is unrolled).
     """
     u = affine_inverse(model.affine, y)
 
@@ -189,7 +222,14 @@ def nonlinear_inverse(
 def measure(
     key: jax.Array, model: NonlinearAccModel, x: Float[Array, "L 3"], config: Dataset1Config
 ) -> Float[Array, "L 3"]:
-    """Average of ``n_oversample`` noisy (and, if configured, rounded) reads per sample, LSB."""
+    """Average of ``n_oversample`` noisy (and, if configured, rounded) reads per sample, LSB.
+
+    Args:
+        key: PRNG key of the read noise.
+        model: the simulated sensor.
+        x: (L, 3) true specific force (g).
+        config: ``sigma_read_g``, ``lsb_per_g``, ``n_oversample`` and ``round_reads`` are read.
+    """
     y = nonlinear_forward(model, x)
     sigma_lsb = config.sigma_read_g * config.lsb_per_g
     n = sigma_lsb * jax.random.normal(key, (config.n_oversample,) + y.shape)
@@ -199,7 +239,13 @@ def measure(
 
 
 def robot_labels(key: jax.Array, x_true: Float[Array, "L 3"], label_err_deg: float) -> Float[Array, "L 3"]:
-    """Labels: ``x_true`` rotated by a random small rotation (the robot's pointing error)."""
+    """Labels: ``x_true`` rotated by a random small rotation (the robot's pointing error).
+
+    Args:
+        key: PRNG key of the pointing errors.
+        x_true: (L, 3) true directions (g).
+        label_err_deg: std of each rotation-vector component (deg).
+    """
     v = jnp.deg2rad(label_err_deg) * jax.random.normal(key, x_true.shape)
     return jnp.einsum("lij,lj->li", exp_so3(v), x_true)
 
@@ -240,6 +286,11 @@ def nested_subset_weights(key: jax.Array, n_train: int, sizes: tuple[int, ...]) 
 
     The subsets are nested (the 18 are inside the 50, ...), and a weight row per size lets fits for
     all sizes run as one ``vmap`` over a padded training set.
+
+    Args:
+        key: PRNG key of the permutation.
+        n_train: training-set size (static: it sets the shape).
+        sizes: subset sizes ``l``, one row each.
     """
     rank = jnp.argsort(jax.random.permutation(key, n_train))  # rank of each sample in the permutation
     return (rank[None, :] < jnp.asarray(sizes)[:, None]).astype(jnp.float32)

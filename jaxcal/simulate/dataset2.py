@@ -23,20 +23,56 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
+from jaxcal.constants import ACC_LSB_PER_G, GYR_LSB_PER_DPS
 from jaxcal.rotation import propagate_specific_force, random_unit_vectors
 from jaxcal.sensor import Diag, diag_forward
+from jaxcal.sequences import Dataset2, Samples, Sequences
 
-ACC_SPEC_LSB_PER_G = 16384.0
-GYR_SPEC_LSB_PER_DPS = 131.0
+__all__ = [
+    "ACC_SPEC_LSB_PER_G",
+    "Dataset2",
+    "Dataset2Config",
+    "GYR_SPEC_LSB_PER_DPS",
+    "GYR_SPEC_LSB_PER_RADS",
+    "Samples",
+    "Sequences",
+    "dataset2",
+    "random_truth",
+    "rate_profile",
+    "simulate_sequences",
+    "test_sets",
+]
+
+ACC_SPEC_LSB_PER_G = ACC_LSB_PER_G
+GYR_SPEC_LSB_PER_DPS = GYR_LSB_PER_DPS
 GYR_SPEC_LSB_PER_RADS = GYR_SPEC_LSB_PER_DPS * 180.0 / math.pi  # 7505.747...
-ACC_RANGE_G = 2.0
-GYR_RANGE_RADS = 250.0 * math.pi / 180.0
 
 
 class Dataset2Config(NamedTuple):
-    """Every parameter of the Dataset 2 simulation (defaults: thesis section 4.2)."""
+    """Every parameter of the Dataset 2 simulation (defaults: thesis section 4.2).
+
+    Static: the sizes set shapes, so :func:`dataset2` is jitted with the config static
+    (``jax.jit(dataset2, static_argnums=1)``); a new config recompiles.
+
+    Attributes:
+        n_train: training sequences.
+        n_val: validation sequences.
+        n_samples: samples per sequence.
+        fs: sampling rate (Hz).
+        w_max: bound of ``w_max,k ~ U[-w_max, w_max]`` (rad/s, eq. 4.4).
+        n_test_acc: static orientations of the accelerometer test set.
+        n_test_gyr: samples of the gyroscope test set.
+        test_gyr_amplitude: amplitude of the gyroscope test rate ``A sin(t)`` (rad/s).
+        acc_lsb_per_g: datasheet accelerometer scale (LSB per g).
+        gyr_lsb_per_rads: datasheet gyroscope scale (LSB per rad/s).
+        scale_tol: true scale per axis uniform within ``+-scale_tol`` (relative) of the datasheet.
+        acc_bias_max: true accelerometer bias per axis uniform in ``+-acc_bias_max`` (LSB).
+        gyr_bias_max: true gyroscope bias per axis uniform in ``+-gyr_bias_max`` (LSB).
+        round_counts: round the outputs to whole counts (eq. 4.6).
+    """
 
     n_train: int = 500
     n_val: int = 100
@@ -54,38 +90,13 @@ class Dataset2Config(NamedTuple):
     round_counts: bool = True
 
 
-class Sequences(NamedTuple):
-    """A set of sequences: raw outputs (LSB) and the truth they were made from."""
-
-    acc: Float[Array, "M N 3"]
-    gyr: Float[Array, "M N 3"]
-    acc_true: Float[Array, "M N 3"]
-    gyr_true: Float[Array, "M N 3"]
-
-
-class Samples(NamedTuple):
-    """A test set: raw outputs (LSB) and truth (g or rad/s)."""
-
-    raw: Float[Array, "L 3"]
-    true: Float[Array, "L 3"]
-
-
-class Dataset2(NamedTuple):
-    """Everything section 4.2 defines, plus the hidden truth for scoring."""
-
-    train: Sequences
-    val: Sequences
-    test_acc: Samples
-    test_gyr: Samples
-    acc_true_model: Diag
-    gyr_true_model: Diag
-    acc_spec: Diag
-    gyr_spec: Diag
-    dt: float
-
-
 def rate_profile(w_max: Float[Array, "3"], n_samples: int) -> Float[Array, "N 3"]:
-    """Eq. 4.4: ``w_k(t) = 4 w_max,k (t - t^2)`` on ``n_samples`` points of ``t in [0, 1]``."""
+    """Eq. 4.4: ``w_k(t) = 4 w_max,k (t - t^2)`` on ``n_samples`` points of ``t in [0, 1]``.
+
+    Args:
+        w_max: (3,) peak rate per axis (rad/s; traced).
+        n_samples: number of points (static: it sets the shape).
+    """
     t = jnp.linspace(0.0, 1.0, n_samples)[:, None]
     return 4.0 * w_max[None, :] * (t - t**2)
 
@@ -96,7 +107,14 @@ def _measure(p: Diag, x: Array, round_counts: bool) -> Array:
 
 
 def random_truth(key: jax.Array, lsb_per_unit: float, scale_tol: float, bias_max: float) -> Diag:
-    """True per-axis scale within ``+-scale_tol`` of spec and bias uniform in ``+-bias_max`` LSB."""
+    """True per-axis scale within ``+-scale_tol`` of spec and bias uniform in ``+-bias_max`` LSB.
+
+    Args:
+        key: PRNG key.
+        lsb_per_unit: datasheet scale (LSB per g or per rad/s).
+        scale_tol: relative scale tolerance.
+        bias_max: bias bound (LSB).
+    """
     ks, kb = jax.random.split(key)
     s = lsb_per_unit * (1.0 + jax.random.uniform(ks, (3,), minval=-scale_tol, maxval=scale_tol))
     b = jax.random.uniform(kb, (3,), minval=-bias_max, maxval=bias_max)
@@ -106,7 +124,15 @@ def random_truth(key: jax.Array, lsb_per_unit: float, scale_tol: float, bias_max
 def simulate_sequences(
     key: jax.Array, n_seq: int, acc_model: Diag, gyr_model: Diag, config: Dataset2Config
 ) -> Sequences:
-    """``n_seq`` sequences of eq. 4.4 motion from uniform start orientations, measured by eq. 4.6."""
+    """``n_seq`` sequences of eq. 4.4 motion from uniform start orientations, measured by eq. 4.6.
+
+    Args:
+        key: PRNG key.
+        n_seq: number of sequences (static: it sets the shape).
+        acc_model: the true accelerometer.
+        gyr_model: the true gyroscope.
+        config: :class:`Dataset2Config` (static: ``n_samples`` sets the shape).
+    """
     kw, kf = jax.random.split(key)
     dt = 1.0 / config.fs
     w_max = jax.random.uniform(kw, (n_seq, 3), minval=-config.w_max, maxval=config.w_max)
@@ -123,7 +149,14 @@ def simulate_sequences(
 
 
 def test_sets(key: jax.Array, acc_model: Diag, gyr_model: Diag, config: Dataset2Config) -> tuple[Samples, Samples]:
-    """Section 4.2 test sets: static orientations (acc) and ``0.35 sin(t)`` on all axes (gyro)."""
+    """Section 4.2 test sets: static orientations (acc) and ``0.35 sin(t)`` on all axes (gyro).
+
+    Args:
+        key: PRNG key.
+        acc_model: the true accelerometer.
+        gyr_model: the true gyroscope.
+        config: :class:`Dataset2Config` (static: the sizes set the shapes).
+    """
     f = random_unit_vectors(key, config.n_test_acc)
     t = jnp.linspace(0.0, 2.0 * math.pi, config.n_test_gyr)
     w = jnp.repeat((config.test_gyr_amplitude * jnp.sin(t))[:, None], 3, axis=1)

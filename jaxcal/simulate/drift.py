@@ -25,11 +25,13 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
 from jaxcal.rotation import propagate_specific_force, random_unit_vectors
 from jaxcal.sensor import Diag
-from jaxcal.simulate.dataset2 import Dataset2Config, Sequences, random_truth, rate_profile
+from jaxcal.sequences import Sequences
+from jaxcal.simulate.dataset2 import Dataset2Config, random_truth, rate_profile
 
 DEG = math.pi / 180.0
 
@@ -37,7 +39,20 @@ DEG = math.pi / 180.0
 class DriftConfig(NamedTuple):
     """Parameters of :func:`simulate_drift` (defaults: one hour, +15 degC warm-up, MPU-6050-class).
 
-    Units: accelerometer g, gyroscope rad/s, temperature degC, time s.
+    Units: accelerometer g, gyroscope rad/s, temperature degC, time s. Static: :func:`simulate_drift`
+    takes the whole config as a static argument, so a new value compiles anew.
+
+    Attributes:
+        n_seq: sequences ``M`` spread evenly over the run.
+        duration_s: length of the run (s).
+        t0_degc: start temperature ``T0``.
+        temp_rise: warm-up rise (degC).
+        temp_tau_s: warm-up time constant (s).
+        acc_bias_tc, gyr_bias_tc: bias tempco magnitude (unit/degC; drawn per axis, see module).
+        acc_scale_tc, gyr_scale_tc: scale tempco magnitude (1/degC).
+        acc_noise_density, gyr_noise_density: white-noise density (unit/sqrt(Hz)).
+        acc_bias_rw, gyr_bias_rw: bias random-walk density (unit/sqrt(s)); 0: none.
+        motion: Dataset 2 motion and sensor settings of each sequence.
     """
 
     n_seq: int = 1000
@@ -61,8 +76,8 @@ class DriftTruth(NamedTuple):
 
     acc_model: Diag
     gyr_model: Diag
-    temp: Float[Array, "M"]
-    t_start: Float[Array, "M"]
+    temp: Float[Array, " M"]
+    t_start: Float[Array, " M"]
     acc_bias_tc: Float[Array, "3"]
     gyr_bias_tc: Float[Array, "3"]
     acc_scale_tc: Float[Array, "3"]
@@ -82,7 +97,12 @@ class DriftData(NamedTuple):
 
 
 def temperature(t: Float[Array, "..."], config: DriftConfig) -> Float[Array, "..."]:
-    """Warm-up profile ``T0 + rise (1 - exp(-t / tau))`` (degC)."""
+    """Warm-up profile ``T0 + rise (1 - exp(-t / tau))`` (degC).
+
+    Args:
+        t: times since the start (s).
+        config: ``t0_degc``, ``temp_rise`` and ``temp_tau_s`` are read.
+    """
     return config.t0_degc + config.temp_rise * (1.0 - jnp.exp(-t / config.temp_tau_s))
 
 
@@ -93,22 +113,32 @@ def _tempco(key: jax.Array, value: float) -> Array:
 
 
 def drift_models(
-    t: Float[Array, "M"],
-    temp: Float[Array, "M"],
+    t: Float[Array, " M"],
+    temp: Float[Array, " M"],
     model0: Diag,
     bias_tc: Float[Array, "3"],
     scale_tc: Float[Array, "3"],
     rw: Float[Array, "M 3"],
     t0_degc: float,
 ) -> Diag:
-    """Truth at each time: ``s = s0 (1 + k_s dT)``, ``b = b0 + s (k_b dT + rw)`` (LSB)."""
+    """Truth at each time: ``s = s0 (1 + k_s dT)``, ``b = b0 + s (k_b dT + rw)`` (LSB).
+
+    Args:
+        t: (M,) sequence start times (s).
+        temp: (M,) temperature at those times (degC).
+        model0: the sensor at ``T0`` (arrays (3,)).
+        bias_tc: (3,) bias tempco (unit/degC).
+        scale_tc: (3,) scale tempco (1/degC).
+        rw: (M, 3) bias random walk (physical unit).
+        t0_degc: reference temperature ``T0`` (degC).
+    """
     d_t = (temp - t0_degc)[:, None]
     s = model0.s[None, :] * (1.0 + scale_tc[None, :] * d_t)
     b = model0.b[None, :] + s * (bias_tc[None, :] * d_t + rw)
     return Diag(s=s, b=b)
 
 
-def _random_walk(key: jax.Array, t: Float[Array, "M"], density: float) -> Float[Array, "M 3"]:
+def _random_walk(key: jax.Array, t: Float[Array, " M"], density: float) -> Float[Array, "M 3"]:
     """Brownian motion sampled at times ``t`` (starting at 0 at ``t[0]``)."""
     dtm = jnp.diff(t, prepend=t[:1])
     steps = jax.random.normal(key, (t.shape[0], 3)) * density * jnp.sqrt(dtm)[:, None]
@@ -116,7 +146,13 @@ def _random_walk(key: jax.Array, t: Float[Array, "M"], density: float) -> Float[
 
 
 def measure(model: Diag, x: Float[Array, "L 3"], beta_noise: Float[Array, "L 3"] | None = None) -> Float[Array, "L 3"]:
-    """``round(s x + b)`` for one time's model (arrays (3,)); optional extra physical-unit noise."""
+    """``round(s x + b)`` for one time's model (arrays (3,)); optional extra physical-unit noise.
+
+    Args:
+        model: the sensor at one time (arrays (3,)).
+        x: (L, 3) true quantity (g or rad/s).
+        beta_noise: optional (L, 3) noise added to ``x`` (physical unit).
+    """
     if beta_noise is not None:
         x = x + beta_noise
     return jnp.round(model.s * x + model.b)
@@ -128,7 +164,12 @@ def _simulate(key: jax.Array, config: DriftConfig):
 
 
 def simulate_drift(key: jax.Array, config: DriftConfig = DriftConfig()) -> DriftData:
-    """Jitted :func:`_simulate_drift` (``config`` static); see there."""
+    """Jitted :func:`_simulate_drift` (``config`` static); see there.
+
+    Args:
+        key: PRNG key.
+        config: :class:`DriftConfig` (static: a new config compiles anew).
+    """
     return _simulate(key, config)
 
 
