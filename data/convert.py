@@ -6,7 +6,8 @@ Reads the byte-for-byte copies in ``../shared/data/<name>/`` with :mod:`jaxcal.r
 ``data/<name>/``:
 
 * ``*.npz``: the conventions' recording (``t`` float64 s; raw counts as integers; physical values
-  converted to g / rad/s and stored as float32), written by :func:`jaxcal.readers.save_npz`.
+  converted to g / rad/s and stored as float32, :func:`compact`), read with :func:`jaxcal.readers.read`
+  and written by :func:`jaxcal.recording.save_recording` (the library's one recording writer).
 * ``*_head.*``: the first lines of each original file, byte for byte, so that the reader tests
   exercise the real formats without the full files.
 * small reference files (calibration results published next to the data) copied verbatim.
@@ -22,19 +23,45 @@ experiments reads ``../shared`` at run time.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
+
+import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from jaxcal import readers  # noqa: E402
+from jaxcal.recording import Recording, save_recording  # noqa: E402
 
 HEAD_LINES = 400
 BROAD_HEAD = 2000  # samples in the BROAD format excerpts (7 s: static start, first mocap gaps)
 BROAD_TRIALS = ("07_undisturbed_fast_rotation_B", "21_undisturbed_fast_combined")
 BROAD_LICENSE = "LICENSE_BROAD_CC-BY-4.0.txt"
+
+
+KEEP_FLOAT64 = ("t", "gt_t")  # times keep float64 (microseconds over hours); other float arrays -> float32
+
+
+def _float32(name: str, v):
+    """``v`` as float32 if it is a float64 array of at least one dimension not in :data:`KEEP_FLOAT64`."""
+    if isinstance(v, np.ndarray) and v.dtype == np.float64 and v.ndim > 0 and name not in KEEP_FLOAT64:
+        return v.astype(np.float32)
+    return v
+
+
+def compact(rec: Recording) -> Recording:
+    """The compact copy's precision: float64 arrays (fields and extras; not ``t`` / ``gt_t``, not
+    scalars) as float32; counts, flags and scalars unchanged."""
+    fields = {f.name: _float32(f.name, getattr(rec, f.name)) for f in dataclasses.fields(rec) if f.name != "extra"}
+    return rec.replace(**fields, extra={k: _float32(k, v) for k, v in rec.extra.items()})
+
+
+def write(rec: Recording, path: Path) -> None:
+    """Write the compact copy of ``rec`` (:func:`compact`) with :func:`jaxcal.recording.save_recording`."""
+    save_recording(compact(rec), path)
 
 
 def head(src: Path, dst: Path, n: int = HEAD_LINES) -> None:
@@ -53,12 +80,12 @@ def main(src: Path) -> None:
     # imu_tk Xsens -----------------------------------------------------------------------
     s, d = src / "imu_tk_xsens_multipos", HERE / "imu_tk_xsens_multipos"
     d.mkdir(exist_ok=True)
-    rec = readers.read_dict("imu_tk", [s / "xsens_acc.mat", s / "xsens_gyro.mat"])
-    readers.save_npz(rec, d / "xsens.npz")
+    rec = readers.read("imu_tk", [s / "xsens_acc.mat", s / "xsens_gyro.mat"])
+    write(rec, d / "xsens.npz")
     head(s / "xsens_acc.mat", d / "xsens_acc_head.txt")
     head(s / "xsens_gyro.mat", d / "xsens_gyro_head.txt")
     readme(s, d, f"""
-- `xsens.npz`: the full recording ({len(rec['t'])} samples), `t` (s, float64), `acc` and `gyr` raw
+- `xsens.npz`: the full recording ({rec.n} samples), `t` (s, float64), `acc` and `gyr` raw
   counts (int32), via `jaxcal.readers.read_imu_tk`.
 - `xsens_acc_head.txt`, `xsens_gyro_head.txt`: the first {HEAD_LINES} lines of the two `.mat`
   (ASCII) files, byte for byte, for the reader tests.
@@ -67,21 +94,21 @@ def main(src: Path) -> None:
     # imucal -------------------------------------------------------------------------------
     s, d = src / "imucal_ferraris_example", HERE / "imucal_ferraris_example"
     d.mkdir(exist_ok=True)
-    sess = readers.read_dict("imucal", [s / "example_ferraris_session.csv", s / "example_ferraris_session_list.json"],
+    sess = readers.read("imucal", [s / "example_ferraris_session.csv", s / "example_ferraris_session_list.json"],
                         fs=102.4, acc_unit="m/s^2", gyr_unit="deg/s")
-    readers.save_npz(sess, d / "session.npz")
-    ann = readers.read_dict("imucal", [s / "annotated_session.csv"], fs=204.8)
-    readers.save_npz(ann, d / "annotated.npz")
+    write(sess, d / "session.npz")
+    ann = readers.read("imucal", [s / "annotated_session.csv"], fs=204.8)
+    write(ann, d / "annotated.npz")
     for f in ("example_cal.json", "example_ferraris_session_list.json"):
         shutil.copyfile(s / f, d / f)
     head(s / "example_ferraris_session.csv", d / "example_ferraris_session_head.csv")
     head(s / "annotated_session.csv", d / "annotated_session_head.csv")
     readme(s, d, f"""
-- `session.npz`: `example_ferraris_session.csv` ({len(sess['t'])} samples) converted to g and rad/s
+- `session.npz`: `example_ferraris_session.csv` ({sess.n} samples) converted to g and rad/s
   (from m/s^2 with 9.80665 and deg/s), `t = n_samples / 102.4`; `section`/`section_names` from
   `example_ferraris_session_list.json` (-1 outside the sections). The physical values are the
   authors' nominal conversion, i.e. still uncalibrated.
-- `annotated.npz`: `annotated_session.csv` ({len(ann['t'])} samples) as raw counts, re-ordered by
+- `annotated.npz`: `annotated_session.csv` ({ann.n} samples) as raw counts, re-ordered by
   sample index, `t = samples / 204.8`, `section` = index into `section_names`. The parts were cut
   out of a longer session: the motion between them is not in the file.
 - `example_cal.json`, `example_ferraris_session_list.json`: verbatim copies.
@@ -94,9 +121,8 @@ def main(src: Path) -> None:
     names = {"example_data_calibration.csv": "calibration.npz", "example_data_tinit_calc.csv": "tinit_calc.npz",
              "imu_static_test.csv": "static_test.npz", "imu_90_x_rot.csv": "rot90x.npz"}
     for f, out in names.items():
-        r = readers.read_dict("mpu6050", [s / f])
-        r["acc"], r["gyr"] = r["acc"].astype("int16"), r["gyr"].astype("int16")
-        readers.save_npz(r, d / out)
+        r = readers.read("mpu6050", [s / f])
+        write(r.replace(acc=r.acc.astype("int16"), gyr=r.gyr.astype("int16")), d / out)
     head(s / "example_data_calibration.csv", d / "example_data_calibration_head.csv")
     (d / "optimization_result_data").mkdir(exist_ok=True)
     for f in (s / "optimization_result_data").iterdir():
@@ -112,12 +138,12 @@ def main(src: Path) -> None:
     # TUM-VI -------------------------------------------------------------------------------
     s, d = src / "tumvi_room1_512_16", HERE / "tumvi_room1_512_16"
     d.mkdir(exist_ok=True)
-    r = readers.read_dict("tumvi", [s / "dataset-room1_512_16.csv", s / "dataset-room1_512_16_gt.csv"])
-    readers.save_npz(r, d / "room1.npz")
+    r = readers.read("tumvi", [s / "dataset-room1_512_16.csv", s / "dataset-room1_512_16_gt.csv"])
+    write(r, d / "room1.npz")
     head(s / "dataset-room1_512_16.csv", d / "imu_head.csv")
     head(s / "dataset-room1_512_16_gt.csv", d / "gt_head.csv")
     readme(s, d, f"""
-- `room1.npz`: IMU ({len(r['t'])} samples) in g (m/s^2 / 9.80665) and rad/s, float32; `t` in s from
+- `room1.npz`: IMU ({r.n} samples) in g (m/s^2 / 9.80665) and rad/s, float32; `t` in s from
   the first IMU sample (`t0` = its Unix time); motion capture interpolated to the IMU times as
   `pos_ref` (m) and `quat_ref` (**scalar first**, re-ordered from the ROS x, y, z, w; slerp; held at the
   ends; `ref_valid` False outside the track and across mocap gaps over 50 ms), and the original 120 Hz track as `gt_t`, `gt_pos`, `gt_quat`.
@@ -127,11 +153,11 @@ def main(src: Path) -> None:
     # x-io Fusion --------------------------------------------------------------------------
     s, d = src / "xio_fusion_sensor_data", HERE / "xio_fusion_sensor_data"
     d.mkdir(exist_ok=True)
-    r = readers.read_dict("fusion", [s / "sensor_data.csv"])
-    readers.save_npz(r, d / "sensor_data.npz")
+    r = readers.read("fusion", [s / "sensor_data.csv"])
+    write(r, d / "sensor_data.npz")
     head(s / "sensor_data.csv", d / "sensor_data_head.csv")
     readme(s, d, f"""
-- `sensor_data.npz`: the full recording ({len(r['t'])} samples), `t` (s, uneven, as recorded),
+- `sensor_data.npz`: the full recording ({r.n} samples), `t` (s, uneven, as recorded),
   `acc` (g), `gyr` (rad/s, from deg/s), `mag` (uT), float32.
 - `sensor_data_head.csv`: the first {HEAD_LINES} lines, byte for byte.
 """)
@@ -148,23 +174,17 @@ def main_broad(src: Path) -> None:
 
 def broad(s: Path, d: Path, trial: str) -> None:
     """One BROAD trial: ``<trial>.npz`` (jaxcal recording, float32), ``<trial>_head.mat``, license, README."""
-    import numpy as np
     import scipy.io
 
-    from jaxcal.recording import recording_from_dict, save_recording
-
     d.mkdir(exist_ok=True)
-    r = readers.read_dict("broad", [s / f"{trial}.mat"])
-    keep64 = ("t", "fs")
-    r32 = {k: (v.astype(np.float32) if isinstance(v, np.ndarray) and v.dtype == np.float64 and k not in keep64 else v)
-           for k, v in r.items()}
-    save_recording(recording_from_dict(r32, str(s / f"{trial}.mat")), d / f"{trial}.npz")
+    r = readers.read("broad", [s / f"{trial}.mat"])
+    write(r, d / f"{trial}.npz")
     m = scipy.io.loadmat(s / f"{trial}.mat")
-    head_vars = {k: (v[:BROAD_HEAD] if np.ndim(v) == 2 and v.shape[0] == len(r["t"]) else v)
+    head_vars = {k: (v[:BROAD_HEAD] if np.ndim(v) == 2 and v.shape[0] == r.n else v)
                  for k, v in m.items() if not k.startswith("__")}
     scipy.io.savemat(d / f"{trial}_head.mat", head_vars, do_compression=True, oned_as="column")
     shutil.copyfile(s / BROAD_LICENSE, d / BROAD_LICENSE)
-    ok = r["ref_valid"]
+    ok = r.ref_valid
 
     def gap_rows(a: np.ndarray) -> int:
         return int(np.isnan(a).any(axis=1).sum())
@@ -175,13 +195,13 @@ def broad(s: Path, d: Path, trial: str) -> None:
   doi:10.3390/data6070072 (https://github.com/dlaidig/broad, file `data_mat/{trial}.mat`, commit
   `7e2f8189bb4a3ac91eae32c69b6bc87f08a6e2ad`). Changed here: file format and units (below); no
   values were cropped, filled or re-synchronised. License text: `{BROAD_LICENSE}` (verbatim copy).
-- `{trial}.npz`: the full trial ({len(r['t'])} samples, {len(r['t']) / r['fs']:.1f} s) as a jaxcal recording
+- `{trial}.npz`: the full trial ({r.n} samples, {r.n / r.fs:.1f} s) as a jaxcal recording
   (`jaxcal.readers.read_broad`, then `jaxcal.recording.save_recording`, `savez_compressed`):
-  `t = k / sampling_rate` (s, float64; `fs` = {r['fs']:.6f} Hz); `acc` in g (`imu_acc` m/s^2 / 9.80665),
+  `t = k / sampling_rate` (s, float64; `fs` = {r.fs:.6f} Hz); `acc` in g (`imu_acc` m/s^2 / 9.80665),
   `gyr` rad/s (`imu_gyr`), `mag` uT (`imu_mag`), `pos_ref` m (`opt_pos`), `quat_ref` Hamilton
   `[w, x, y, z]` IMU frame -> ENU = body to world (`opt_quat`, order and direction unchanged,
   finite rows renormalised), all float32. Mocap gaps stay NaN (whole rows; `pos_ref` NaN in
-  {gap_rows(r['pos_ref'])} rows, `quat_ref` NaN in {gap_rows(r['quat_ref'])} rows);
+  {gap_rows(r.pos_ref)} rows, `quat_ref` NaN in {gap_rows(r.quat_ref)} rows);
   `ref_valid` (bool) is True where both are finite ({int(ok.sum())} of {ok.size} rows).
   Extras: `movement` (bool, the file's movement-phase flag), `meta_info` (the `info` text).
 - `{trial}_head.mat`: the first {BROAD_HEAD} samples of every variable of the original `.mat`

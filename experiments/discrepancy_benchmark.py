@@ -31,52 +31,15 @@ import jax
 import numpy as np
 
 from jaxcal.diagnose import diagnose_recording
-from jaxcal.recording import load_recording
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.report import effect_estimate, named_effects
 from jaxcal.diagnose.simulate import RichConfig, simulate_batch, simulate_recording
-from jaxcal.diagnose.stress import conceal, conceal_lever_arm, conceal_shift
+from jaxcal.diagnose.stress import conceal, conceal_lever_arm, conceal_shift, effect_at_mds
+from jaxcal.recording import Recording, load_recording
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
 SIZES = (0.5, 1.0, 2.0, 5.0)
 EFFECTS = [(s, sl.name) for s in ("acc", "gyr") for sl in E.LAYOUT[s]] + [("acc", "saturation"), ("gyr", "saturation")]
-
-
-def _named(rep: dict) -> set[tuple[str, str]]:
-    return {(e["sensor"], e["name"]) for e in rep["effects"]}
-
-
-def _inject(rng: np.random.Generator, rep0: dict, rec0: dict, sensor: str, name: str, m: float, cfg: RichConfig):
-    """Effect dict / saturation dict concealing ``name`` at ``m`` x its MDS (from the null report)."""
-    md = rep0["sensors"][sensor]["mds"][name]
-    if name == "saturation":
-        # the depth is below the model's noiseless peak (the observed peak sits a few noise sd above it)
-        peak = float(md.get("predicted_peak_lsb", np.max(np.abs(rec0[sensor]))))
-        lim = float(np.floor(peak - m * md["depth_lsb"]))
-        return {}, {sensor: lim}, np.array([lim])
-    F = np.asarray(md["fisher"])
-    comp = np.asarray(md["components"])
-    v = rng.standard_normal(len(comp)) * comp
-    u = v / np.linalg.norm(v)
-    th = m * np.sqrt(md["lambda_star"] / float(u @ F @ u)) * u
-    sl = E.slot(sensor, name)
-    params = {sl.param: th if sl.shape != () else th[:1]}
-    flat = np.zeros(E.N_THETA[sensor])
-    flat[sl.start : sl.start + sl.size] = th
-    return {(sensor, name): params}, {}, flat[sl.start : sl.start + sl.size]
-
-
-def _estimate(rep: dict, sensor: str, name: str):
-    for e in rep["effects"]:
-        if e["sensor"] == sensor and e["name"] == name:
-            if name == "saturation":
-                return np.array([e["params"]["limit"]]), np.array([e["stderr"]["limit"]]), e
-            sl = E.slot(sensor, name)
-            p, s = e["params"][sl.param], e["stderr"][sl.param]
-            if name == "misalignment":
-                p = [np.asarray(p)[i, j] for i, j in E.OFFDIAG]
-                s = [np.asarray(s)[i, j] for i, j in E.OFFDIAG]
-            return np.ravel(p).astype(float), np.ravel(s).astype(float), e
-    return None, None, None
 
 
 def _keys(seeds) -> jax.Array:
@@ -118,7 +81,7 @@ def run(quick: bool) -> dict:
         batch = simulate_batch(_keys(10_000 + np.arange(seeds_null)), c)
         t_sim += time.perf_counter() - t0
         reps = _diagnose_all(batch, run_times)
-        named = [_named(r) for r in reps]
+        named = [named_effects(r) for r in reps]
         fd = sum(bool(g) for g in named)
         names = [f"{s} {nm}" for g in named for s, nm in sorted(g)]
         if label == "white":
@@ -132,7 +95,7 @@ def run(quick: bool) -> dict:
         for m in SIZES:
             ns = seeds_main if m == 2.0 else seeds_other
             seeds = list(range(ns))
-            inj = [_inject(rng, nulls[sd % seeds_null][1], nulls[sd % seeds_null][0], sensor, name, m, cfg) for sd in seeds]
+            inj = [effect_at_mds(rng, nulls[sd % seeds_null][1], sensor, name, m, getattr(nulls[sd % seeds_null][0], sensor)) for sd in seeds]
             t0 = time.perf_counter()
             batch = simulate_batch(_keys([10_000 + sd % seeds_null for sd in seeds]), cfg,
                                    {sensor: np.stack([_flat(sensor, e) for e, _, _ in inj])}, [sat for _, sat, _ in inj])
@@ -140,9 +103,9 @@ def run(quick: bool) -> dict:
             reps = _diagnose_all(batch, run_times)
             det, cover, comps, err, extra, gain = 0, 0, 0, [], 0, []
             for (_, _, truth), rep in zip(inj, reps):
-                others = _named(rep) - {(sensor, name)}
+                others = named_effects(rep) - {(sensor, name)}
                 extra += bool(others)
-                est, se, e = _estimate(rep, sensor, name)
+                est, se, e = effect_estimate(rep, sensor, name)
                 if est is None:
                     continue
                 det += 1
@@ -166,11 +129,11 @@ def run(quick: bool) -> dict:
         base = simulate_batch(keys, c)
         reps0 = _diagnose_all(base, run_times)
         for true_name in ("temperature_bias", "bias_drift"):
-            inj = [_inject(rng, rep0, rec0, "acc", true_name, 3.0, c) for (rec0, _), rep0 in zip(base, reps0)]
+            inj = [effect_at_mds(rng, rep0, "acc", true_name, 3.0, rec0.acc) for (rec0, _), rep0 in zip(base, reps0)]
             batch = simulate_batch(keys, c, {"acc": np.stack([_flat("acc", e) for e, _, _ in inj])})
             reps = _diagnose_all(batch, run_times)
             other = "bias_drift" if true_name == "temperature_bias" else "temperature_bias"
-            got = [_named(r) for r in reps]
+            got = [named_effects(r) for r in reps]
             named_true = sum(("acc", true_name) in g for g in got)
             named_other = sum(("acc", other) in g for g in got)
             warned = sum(any("temperature_bias" in w and "bias_drift" in w and "confounded" in w for w in r["warnings"]) for r in reps)
@@ -185,7 +148,7 @@ def run(quick: bool) -> dict:
     reps = _diagnose_all(simulate_batch(_keys(30_000 + np.arange(seeds_other)), cfg, {"gyr": th}), run_times)
     big = []
     for tau, rep in zip(taus, reps):
-        est, se, _ = _estimate(rep, "gyr", "time_offset")
+        est, se, _ = effect_estimate(rep, "gyr", "time_offset")
         big.append({"tau_true": tau, "tau_est": None if est is None else float(est[0]), "stderr": None if se is None else float(se[0])})
     out["large_time_offset"] = big
     out["timing"] = {"runs": len(run_times), "median_run_s": float(np.median(run_times)), "total_s": time.perf_counter() - t_start,
@@ -275,11 +238,11 @@ def write_md_section(text: str, marker: str, stem: str = "discrepancy") -> None:
 TUMVI = Path(__file__).resolve().parent.parent / "data" / "tumvi_room1_512_16" / "room1.npz"
 
 
-def _tumvi() -> dict:
+def _tumvi() -> Recording:
     """The compact TUM-VI copy exactly as ``jaxcal diagnose`` reads it (``load_recording``): the
     reader's gap marking and the pose track's times (``gt_t``) decide where the reference is missing
     (:func:`jaxcal.diagnose.core.prepare`), so the command line and this script give one report."""
-    return load_recording(TUMVI).to_dict()
+    return load_recording(TUMVI)
 
 
 REAL_EFFECTS = (("acc", "lever_arm"), ("acc", "time_offset"), ("gyr", "time_offset"), ("gyr", "g_sensitivity"),
@@ -289,14 +252,14 @@ REAL_SIZE_X_MDS = 3.0
 
 def _case(rep0: dict, rep: dict, sensor: str, name: str, truth: np.ndarray, wall: float) -> dict:
     """One concealed realisation: estimate, as-recorded estimate, interval check, other effects named."""
-    est, se, e = _estimate(rep, sensor, name)
-    est0, se0, e0 = _estimate(rep0, sensor, name)
+    est, se, e = effect_estimate(rep, sensor, name)
+    est0, se0, e0 = effect_estimate(rep0, sensor, name)
     truth = np.ravel(truth).astype(float)
     if est0 is None:
         est0, se0 = np.zeros_like(truth), np.zeros_like(truth)
     row = {"sensor": sensor, "effect": name, "truth": truth.tolist(), "named": est is not None,
            "as_recorded_estimate": est0.tolist(), "as_recorded_named": e0 is not None, "diagnosis_s": wall,
-           "other_effects": sorted({f"{s} {n}" for s, n in _named(rep) - _named(rep0)} - {f"{sensor} {name}"})}
+           "other_effects": sorted({f"{s} {n}" for s, n in named_effects(rep) - named_effects(rep0)} - {f"{sensor} {name}"})}
     if est is not None:
         d = est - est0
         sc = np.hypot(se, se0)
@@ -313,14 +276,14 @@ def real_data(quick: bool, prefix: str = "discrepancy") -> dict:
     Fixed cases (the earlier ones): lever arm r = [0.04, -0.03, 0.06] m through the pose; both IMU
     streams delayed by 8 ms. Random cases: each effect of :data:`REAL_EFFECTS` concealed at
     :data:`REAL_SIZE_X_MDS` x its minimum detectable size on this recording (from the as-recorded
-    report, along a random direction, random sign; :func:`_inject`), several realisations each.
+    report, along a random direction, random sign; :func:`jaxcal.diagnose.stress.effect_at_mds`), several realisations each.
     """
     import matplotlib.pyplot as plt
 
     if not TUMVI.exists():
         return {"missing": str(TUMVI)}
     rec = _tumvi()
-    out: dict = {"n_imu_samples": int(len(rec["t"])), "duration_s": float(rec["t"][-1] - rec["t"][0])}
+    out: dict = {"n_imu_samples": rec.n, "duration_s": float(rec.t[-1] - rec.t[0])}
     t0 = time.perf_counter()
     rep = diagnose_recording(rec, with_figures=True)
     out["as_recorded_time_s"] = time.perf_counter() - t0
@@ -349,7 +312,7 @@ def real_data(quick: bool, prefix: str = "discrepancy") -> dict:
     cases = []
     for sensor, name in REAL_EFFECTS:
         for k in range(n_real):
-            eff, _, truth = _inject(rng, rep, rec, sensor, name, REAL_SIZE_X_MDS, None)
+            eff, _, truth = effect_at_mds(rng, rep, sensor, name, REAL_SIZE_X_MDS, getattr(rec, sensor))
             t0 = time.perf_counter()
             rp = diagnose_recording(conceal(rec, sensor, name, np.ravel(truth)))
             c = _case(rep, rp, sensor, name, truth, time.perf_counter() - t0)
@@ -458,7 +421,7 @@ def real_markdown(res: dict) -> str:
         L.append(f"| {c['effect']} | {c['sensor']} | {_fmt(c['truth'])} | {_fmt(c['mds'], 2)} | {rec_} | {se} | {ins} | {', '.join(c['other_effects']) or '-'} |")
     rr = res["random"]
     L += ["", f"Random realisations: each effect concealed at {rr['size_x_mds']:g}x its MDS on this recording along a random direction "
-          f"(`_inject`, as in the simulation benchmark), {rr['realisations']} realisations each:", "",
+          f"(`diagnose.stress.effect_at_mds`, as in the simulation benchmark), {rr['realisations']} realisations each:", "",
           "| sensor | effect | named | components inside 95 % | realisations naming another effect | median |recovered - concealed| / |concealed| |",
           "|---|---|---|---|---|---|"]
     short = []
@@ -539,7 +502,7 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
     recording. ``diagnose`` and ``align`` run as the command line runs them (``load_recording``)."""
     import matplotlib.pyplot as plt
 
-    from jaxcal.diagnose.align import alignment_figure, align_recording
+    from jaxcal.diagnose.align import align_recording, alignment_figure
     from jaxcal.diagnose.report import promise_violations
     from jaxcal.diagnose.stress import alignment_errors, compose_truth, random_stress_config, stress
 
@@ -554,7 +517,7 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
             n_stress_here, conceal_here = 0, False
         else:
             n_stress_here, conceal_here = n_stress, not quick
-        rec = load_recording(path).to_dict()
+        rec = load_recording(path)
         tag = name.split()[0].lower() + ("" if k == 0 else name.split()[1])
         t0 = time.perf_counter()
         rep = diagnose_recording(rec, pose_sigma=None)
@@ -563,7 +526,7 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
         fig = alignment_figure(a0)
         fig.savefig(RESULTS / "figures" / f"{prefix}_align_{tag}.png", dpi=100)
         plt.close(fig)
-        row = {"path": str(path.relative_to(DATA.parent)), "n_samples": int(len(rec["t"])), "duration_s": float(rec["t"][-1] - rec["t"][0]),
+        row = {"path": str(path.relative_to(DATA.parent)), "n_samples": rec.n, "duration_s": float(rec.t[-1] - rec.t[0]),
                "diagnose": {"named": _named_list(rep), "baseline": rep["baseline"], "final": rep["final"], "band": rep.get("reference_band"),
                             "promise_violations": promise_violations(rep), "warnings": rep["warnings"], "time_s": t_diag},
                "align": _align_summary(a0.align), "align_figure": f"figures/{prefix}_align_{tag}.png", "readme_check": check}
@@ -601,7 +564,7 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
     return out
 
 
-def _rig_concealed(srec: dict, drep: dict, rng: np.random.Generator) -> list[dict]:
+def _rig_concealed(srec: Recording, drep: dict, rng: np.random.Generator) -> list[dict]:
     """Each of :data:`RIG_EFFECTS` concealed at 3x its MDS in a stressed recording (affine baseline);
     the stressed recording's own report is the 'as recorded' one of :func:`_case`."""
     from jaxcal.diagnose.report import promise_violations
@@ -610,7 +573,7 @@ def _rig_concealed(srec: dict, drep: dict, rng: np.random.Generator) -> list[dic
     for sensor, name in RIG_EFFECTS:
         if name not in drep["sensors"][sensor]["mds"]:
             continue
-        _, _, truth = _inject(rng, drep, srec, sensor, name, REAL_SIZE_X_MDS, None)
+        _, _, truth = effect_at_mds(rng, drep, sensor, name, REAL_SIZE_X_MDS, getattr(srec, sensor))
         t0 = time.perf_counter()
         rp = diagnose_recording(conceal(srec, sensor, name, np.ravel(truth)), baseline="affine", pose_sigma=None)
         c = _case(drep, rp, sensor, name, truth, time.perf_counter() - t0)

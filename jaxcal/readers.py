@@ -1,22 +1,26 @@
-"""Readers: public IMU recording formats -> the conventions' recording (``CONVENTIONS.md``).
+"""Readers: public IMU recording formats -> :class:`jaxcal.recording.Recording` (``CONVENTIONS.md``).
 
-Every reader returns a plain ``dict`` of numpy arrays keyed by the conventions' names:
+Every reader returns a validated :class:`~jaxcal.recording.Recording` (the only in-memory
+recording; files in the conventions' own format are read by :func:`jaxcal.recording.load_recording`):
 
 * ``t`` (N,) float64, seconds, increasing. Uneven sampling is kept as recorded.
 * ``acc`` (N, 3) and ``gyr`` (N, 3): raw integer counts (``acc_unit`` / ``gyr_unit`` = ``"LSB"``)
   or physical values converted explicitly to **g** and **rad/s** (``"g"`` / ``"rad/s"``).
-* optional ``fs`` (Hz), ``acc_lsb_per_g``, ``gyr_lsb_per_rads`` (datasheet values where the format
-  documents them), ``pos_ref`` (m) / ``quat_ref`` (Hamilton, **scalar first**, body to world),
-  ``seq``, ``static``, and format-specific extras (``mag`` in uT, ``section`` ids with
-  ``section_names``, ``meta_*`` header values).
+* where the format has them: ``fs`` (Hz), ``acc_lsb_per_g``, ``gyr_lsb_per_rads`` (datasheet
+  values where the format documents them), ``pos_ref`` (m) / ``quat_ref`` (Hamilton, **scalar
+  first**, body to world) with ``ref_valid`` and the original track ``gt_t`` / ``gt_pos`` /
+  ``gt_quat``, ``t0`` (s), ``mag`` (uT), ``section`` ids with ``section_names``; format-specific
+  extras (``meta_*`` header values, BROAD's ``movement``, EuRoC's ``t0_ns``) in ``Recording.extra``.
 
-:func:`read_dict` dispatches on a format name; :func:`read` does the same and returns a validated
-:class:`jaxcal.recording.Recording` (``jaxcal import FORMAT FILES...``). The per-format functions
-are public too. Units are never guessed silently: a unit is taken from the caller or from
-the header (``Name (unit)`` / ``Name [unit]``), and an unknown, conflicting or implausible unit
-raises :class:`ReaderError` naming the file, the column and the reason.
+:func:`read` dispatches on a format name (``jaxcal import FORMAT FILES...``); the per-format
+functions are public too. Units are never guessed silently: a unit is taken from the caller or
+from the header (``Name (unit)`` / ``Name [unit]``), and an unknown, conflicting or implausible
+unit raises :class:`ReaderError` naming the file, the column and the reason; a result that breaks
+the conventions raises :class:`jaxcal.recording.RecordingError`.
 
-Readers do file input by design (this module is the I/O boundary); they hold no state.
+Readers do file input by design (with :mod:`jaxcal.recording`, this is the recording I/O
+boundary); they hold no state. Internally a reader fills a ``dict`` and hands it to
+:func:`jaxcal.recording.recording_from_dict` once (:func:`_finish`).
 """
 
 from __future__ import annotations
@@ -26,12 +30,33 @@ import io
 import json
 import math
 import re
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
-G0 = 9.80665  # standard gravity, m/s^2 (conventions: the g unit)
+from jaxcal.constants import ACC_LSB_PER_G, G0, GYR_LSB_PER_DPS, PHYS_UNIT, SENSORS
+from jaxcal.recording import Recording, implausible, recording_from_dict
+
+__all__ = [
+    "FORMATS",
+    "ReaderError",
+    "read",
+    "read_imu_tk",
+    "read_imucal",
+    "read_euroc",
+    "read_tumvi",
+    "read_mpu6050",
+    "read_fusion",
+    "read_broad",
+    "read_generic_csv",
+    "unit_factor",
+    "unit_from_header",
+    "check_plausible",
+    "MPU6050_ACC_LSB_PER_G",
+    "MPU6050_GYR_LSB_PER_RADS",
+]
 
 # Factors to the conventions' units. ``None`` marks raw counts (kept as integers).
 _ACC_UNITS: dict[str, float | None] = {
@@ -47,7 +72,7 @@ _TIME_UNITS: dict[str, float] = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "
 _MAG_UNITS: dict[str, float] = {"ut": 1.0, "µt": 1.0, "gauss": 100.0, "mgauss": 0.1, "nt": 1e-3}
 
 _QUANTITY_UNITS = {"acc": _ACC_UNITS, "gyr": _GYR_UNITS, "t": _TIME_UNITS, "mag": _MAG_UNITS}
-_CANONICAL = {"acc": "g", "gyr": "rad/s", "t": "s", "mag": "uT"}
+_CANONICAL = {**PHYS_UNIT, "t": "s", "mag": "uT"}
 
 FORMATS = ("imu_tk", "imucal", "euroc", "tumvi", "mpu6050", "fusion", "broad", "csv")
 
@@ -173,15 +198,23 @@ def _check_time(t: np.ndarray, where: str) -> np.ndarray:
     return t
 
 
+_SENSOR_WORD = {"acc": "accelerometer", "gyr": "gyroscope"}
+
+
 def check_plausible(rec: Mapping[str, Any], where: str = "recording") -> None:
     """Reject physical units that cannot be right (a wrong unit, e.g. m/s^2 declared as g).
 
     The rule is :func:`jaxcal.recording.implausible` (the one every loaded recording passes too);
-    here the message names the file's own column.
-    """
-    from jaxcal.recording import implausible
+    here the message names the file's own column. ``rec`` is the ``name -> array`` mapping a
+    reader is filling (with its ``_acc_columns`` / ``_gyr_columns`` labels), before
+    :func:`_finish` makes it a :class:`~jaxcal.recording.Recording`.
 
-    for s, unit, word in (("acc", "g", "accelerometer"), ("gyr", "rad/s", "gyroscope")):
+    Args:
+        rec: the ``name -> array`` mapping a reader is filling.
+        where: prefix of the error message (the file).
+    """
+    for s in SENSORS:
+        unit, word = PHYS_UNIT[s], _SENSOR_WORD[s]
         if rec.get(f"{s}_unit") != unit or s not in rec:
             continue
         why = implausible(s, np.asarray(rec[s], np.float64), "after unit conversion")
@@ -190,13 +223,15 @@ def check_plausible(rec: Mapping[str, Any], where: str = "recording") -> None:
             raise ReaderError(f"{where}: column {col}: {why}; the declared {word} unit is wrong")
 
 
-def _finish(rec: dict[str, Any], where: str, plausible: bool = True) -> dict[str, Any]:
+def _finish(rec: dict[str, Any], where: str, plausible: bool = True) -> Recording:
+    """The reader's filled mapping as a validated :class:`~jaxcal.recording.Recording`: units
+    plausible (naming the file's column), time strictly increasing, then the conventions' checks."""
     if plausible:
         check_plausible(rec, where)
     rec.pop("_acc_columns", None)
     rec.pop("_gyr_columns", None)
     rec["t"] = _check_time(np.asarray(rec["t"], dtype=np.float64), where)
-    return rec
+    return recording_from_dict(rec, where)
 
 
 def _convert3(
@@ -239,7 +274,7 @@ def read_generic_csv(
     *,
     fs: float | None = None,
     skip_rows: int = 0,
-) -> dict[str, Any]:
+) -> Recording:
     """Any CSV with a header row, given a column mapping and units.
 
     Args:
@@ -254,7 +289,8 @@ def read_generic_csv(
         skip_rows: lines to skip before the header.
 
     Returns:
-        The recording dict (``t`` in s, ``acc`` in g or LSB, ``gyr`` in rad/s or LSB).
+        The :class:`~jaxcal.recording.Recording` (``t`` in s, ``acc`` in g or LSB, ``gyr`` in rad/s
+        or LSB, ``mag`` in uT, ``temp``, ``fs``).
 
     Raises:
         ReaderError: missing column, unknown/conflicting/implausible unit (names the column).
@@ -296,11 +332,16 @@ def read_generic_csv(
     return _finish(rec, str(path))
 
 
-def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, time_unit: str = "s") -> dict[str, Any]:
+def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, time_unit: str = "s") -> Recording:
     """imu_tk ASCII: one whitespace-separated ``t x y z`` file per sensor, raw counts.
 
     Both files must share the time column (imu_tk's test data does). Values are kept as integer
     counts (LSB); the imu_tk test recordings are unsigned 16-bit ADC counts centred near 32768.
+
+    Args:
+        acc_path: the accelerometer's ``t x y z`` file.
+        gyr_path: the gyroscope's ``t x y z`` file (same time column).
+        time_unit: unit of the time column.
     """
     out = {key: _txyz_table(Path(p)) for key, p in (("acc", acc_path), ("gyr", gyr_path))}
     ta, tg = out["acc"][:, 0], out["gyr"][:, 0]
@@ -347,7 +388,7 @@ def read_imucal(
     acc_unit: str | None = None,
     gyr_unit: str | None = None,
     sections: str | Path | None = None,
-) -> dict[str, Any]:
+) -> Recording:
     """imucal / pandas CSV: ``n_samples`` (or ``samples``) index, ``acc_*``, ``gyr_*``, optional ``part``.
 
     Two variants exist: a continuous session in physical units (imucal's example session:
@@ -357,6 +398,14 @@ def read_imucal(
     Annotated rows are re-ordered by sample index; ``section`` (N,) int and ``section_names``
     record the parts. A ``sections`` JSON (``{"x_p": {"start": i, "end": j}, ...}``) labels a
     continuous session the same way (-1 outside every section).
+
+    Args:
+        path: the CSV file.
+        fs: sampling rate (Hz); ``t = index / fs``.
+        acc_unit: unit of the ``acc_*`` columns (e.g. ``"m/s^2"``); required for a continuous session,
+            default ``"a.u."`` (LSB) for an annotated one.
+        gyr_unit: unit of the ``gyr_*`` columns (e.g. ``"deg/s"``); as ``acc_unit``.
+        sections: optional JSON file labelling the sections of a continuous session.
     """
     path = Path(path)
     fs = _positive_rate(fs, f"{path}: fs")
@@ -515,7 +564,7 @@ def _strip_units(header: list[str]) -> list[str]:
     return [_UNIT_IN_NAME.sub("", h).strip() for h in header]
 
 
-def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max_gap: float = 0.05) -> dict[str, Any]:
+def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max_gap: float = 0.05) -> Recording:
     """EuRoC / ASL CSV: ``imu0/data.csv`` (+ ``vicon0/data.csv`` or ground-truth estimate).
 
     Header ``#timestamp [ns],w_RS_S_x [rad s^-1],...,a_RS_S_x [m s^-2],...``; the pose file has
@@ -523,6 +572,11 @@ def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max
     Time is converted from ns to s (relative times keep float64 precision: ``t`` counts from the
     first IMU sample, ``t0_ns`` keeps the offset). Poses are interpolated to IMU times
     (``pos_ref``, ``quat_ref``; ``ref_valid`` is False across gaps over ``max_gap`` s).
+
+    Args:
+        imu_path: the IMU CSV (``imu0/data.csv``).
+        pose_path: optional pose CSV (``vicon0/data.csv`` or a ground-truth estimate); None: no pose.
+        max_gap: longest pose spacing interpolated across (s).
     """
     imu_path = Path(imu_path)
     header, rows = _read_table(imu_path)
@@ -564,7 +618,7 @@ _TUMVI_GT = ("transform.translation.x", "transform.translation.y", "transform.tr
              "transform.rotation.x", "transform.rotation.y", "transform.rotation.z", "transform.rotation.w")
 
 
-def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_gap: float = 0.05) -> dict[str, Any]:
+def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_gap: float = 0.05) -> Recording:
     """TUM-VI CSV (ROS message field names, as exported by Brossard et al.'s tools).
 
     IMU: ``Time`` (Unix s), ``angular_velocity.*`` (rad/s), ``linear_acceleration.*`` (m/s^2,
@@ -573,6 +627,11 @@ def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_g
     Hamilton ``[w, x, y, z]``. The original TUM-VI ``mav0/imu0/data.csv`` uses the EuRoC layout:
     it is read by :func:`read_euroc`. ``t`` counts from the first IMU sample (``t0`` keeps the
     Unix offset, so float64 keeps microsecond precision).
+
+    Args:
+        imu_path: the IMU CSV.
+        gt_path: optional ground-truth CSV; None: no pose.
+        max_gap: longest pose spacing interpolated across (s).
     """
     imu_path = Path(imu_path)
     header, rows = _read_table(imu_path)
@@ -600,11 +659,13 @@ def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_g
     return _finish(rec, str(imu_path))
 
 
-MPU6050_ACC_LSB_PER_G = 16384.0  # +-2 g default full scale
-MPU6050_GYR_LSB_PER_RADS = 131.0 * 180.0 / math.pi  # +-250 deg/s default full scale
+# The MPU-6050 datasheet's sensitivities at its default full scales (+-2 g, +-250 deg/s): the
+# chip's own numbers (131 LSB/(deg/s), not 2**15 / 250), kept here as reader-specific values.
+MPU6050_ACC_LSB_PER_G = ACC_LSB_PER_G
+MPU6050_GYR_LSB_PER_RADS = GYR_LSB_PER_DPS * 180.0 / math.pi
 
 
-def read_mpu6050(path: str | Path) -> dict[str, Any]:
+def read_mpu6050(path: str | Path) -> Recording:
     """MPU-6050 Arduino log (tomisuarez2/ImuCalibration): ``key,value`` metadata lines, a header
     ``ax,ay,az,gx,gy,gz`` and signed 16-bit counts; no time column.
 
@@ -643,7 +704,7 @@ def read_mpu6050(path: str | Path) -> dict[str, Any]:
     return _finish(rec, str(path))
 
 
-def read_fusion(path: str | Path) -> dict[str, Any]:
+def read_fusion(path: str | Path) -> Recording:
     """x-io Fusion CSV: ``Time (s), Gyroscope X (deg/s), ..., Accelerometer X (g), ...,
     Magnetometer X (uT), ...`` with units in the header (converted explicitly; ``mag`` in uT).
     """
@@ -680,7 +741,7 @@ def _mat_variable(path: Path, m: Mapping[str, Any], name: str, cols: int, n: int
     return a.astype(np.float64)
 
 
-def read_broad(path: str | Path) -> dict[str, Any]:
+def read_broad(path: str | Path) -> Recording:
     """BROAD trial file (Laidig et al. 2021, *Data* 6(7):72; ``data_mat/NN_<trial>.mat``, CC BY 4.0).
 
     A MATLAB 5 file (read with :func:`scipy.io.loadmat`) holding ``imu_acc`` (N, 3) m/s^2
@@ -691,11 +752,11 @@ def read_broad(path: str | Path) -> dict[str, Any]:
     stamps: ``t = k / sampling_rate``. The optical reference is already synchronised and
     expressed for the IMU frame by the dataset authors.
 
-    Returns the recording dict: ``acc`` in g (m/s^2 / 9.80665), ``gyr`` in rad/s, ``pos_ref``,
-    ``quat_ref`` (finite rows renormalised), ``fs``, ``ref_valid`` (N,) bool (rows where both
-    ``opt_pos`` and ``opt_quat`` are finite) and, where the file has them, ``mag`` (uT),
-    ``movement`` (N,) bool and ``meta_info``. Reference gaps stay NaN (never filled); a row with
-    any NaN is a gap and is made all NaN.
+    Returns the :class:`~jaxcal.recording.Recording`: ``acc`` in g (m/s^2 / 9.80665), ``gyr`` in
+    rad/s, ``pos_ref``, ``quat_ref`` (finite rows renormalised), ``fs``, ``ref_valid`` (N,) bool
+    (rows where both ``opt_pos`` and ``opt_quat`` are finite) and, where the file has them, ``mag``
+    (uT), ``extra["movement"]`` (N,) bool and ``extra["meta_info"]``. Reference gaps stay NaN
+    (never filled); a row with any NaN is a gap and is made all NaN.
 
     Raises:
         ReaderError: not a readable MAT file, a missing variable, a wrong shape or dtype,
@@ -751,8 +812,6 @@ def read_broad(path: str | Path) -> dict[str, Any]:
         "gyr_unit": "rad/s", "fs": fs, "pos_ref": ref["opt_pos"], "quat_ref": q,
         "ref_valid": ok & np.isfinite(ref["opt_pos"]).all(axis=1),
     }
-    from jaxcal.recording import implausible
-
     for s, name in (("acc", "imu_acc"), ("gyr", "imu_gyr")):
         why = implausible(s, rec[s], "after unit conversion")
         if why:
@@ -772,23 +831,24 @@ def read_broad(path: str | Path) -> dict[str, Any]:
     return _finish(rec, str(path), plausible=False)
 
 
-def read(format: str, files: Sequence[str | Path], **options: Any):
+def read(format: str, files: Sequence[str | Path], **options: Any) -> Recording:
     """Read ``files`` in ``format`` into a validated :class:`jaxcal.recording.Recording`.
 
-    Same arguments as :func:`read_dict`; format-specific extras go to ``Recording.extra``.
-    """
-    from jaxcal.recording import recording_from_dict
+    Format-specific extras (``meta_*``, ``movement``, ``t0_ns``) go to ``Recording.extra``.
 
-    return recording_from_dict(read_dict(format, files, **options), source=str(files[0]) if files else "")
+    Args:
+        format: one of :data:`FORMATS`.
+        files: ``imu_tk``: ``[acc_file, gyr_file]``; ``imucal``: ``[csv]`` or ``[csv, sections.json]``;
+            ``euroc`` / ``tumvi``: ``[imu_csv]`` or ``[imu_csv, pose_csv]``; ``mpu6050`` / ``fusion``:
+            ``[csv]``; ``broad``: ``[trial.mat]``; ``csv``: ``[csv]``.
+        **options: the format's keyword options: ``imucal``: ``fs`` (required), ``acc_unit``,
+            ``gyr_unit``; ``euroc`` / ``tumvi``: ``max_gap``; ``imu_tk``: ``time_unit``; ``csv``:
+            ``columns`` (required), ``units``, ``fs``, ``skip_rows``.
 
-
-def read_dict(format: str, files: Sequence[str | Path], **options: Any) -> dict[str, Any]:
-    """Read ``files`` in ``format`` (one of :data:`FORMATS`) into a recording dict.
-
-    ``imu_tk``: ``[acc_file, gyr_file]``; ``imucal``: ``[csv]`` or ``[csv, sections.json]``
-    (options ``fs``, ``acc_unit``, ``gyr_unit``); ``euroc``/``tumvi``: ``[imu_csv]`` or
-    ``[imu_csv, pose_csv]``; ``mpu6050``/``fusion``: ``[csv]``; ``broad``: ``[trial.mat]``; ``csv``:
-    ``[csv]`` with options ``columns``, ``units``, ``fs``, ``skip_rows``.
+    Raises:
+        ReaderError: unknown format, wrong number of files, a missing file, or bad content (the
+            message names the file, the column and the reason).
+        RecordingError: the result breaks the conventions (:func:`jaxcal.recording.validate_recording`).
     """
     files = [Path(f) for f in files]
     for f in files:
@@ -828,21 +888,3 @@ def read_dict(format: str, files: Sequence[str | Path], **options: Any) -> dict[
             raise ReaderError(f"{files[0]}: the generic csv format needs a column mapping (columns=...)")
         return read_generic_csv(files[0], **options)
     raise ReaderError(f"unknown format {format!r}; expected one of {list(FORMATS)}")
-
-
-def save_npz(rec: Mapping[str, Any], path: str | Path, compressed: bool = True) -> None:
-    """Write a recording dict as the conventions' ``.npz`` (float64 physical arrays -> float32
-    where the precision allows; ``t`` stays float64, counts stay integers)."""
-    out = {}
-    for k, v in rec.items():
-        a = np.asarray(v)
-        if k not in ("t", "gt_t") and a.dtype == np.float64 and a.ndim > 0:
-            a = a.astype(np.float32)
-        out[k] = a
-    (np.savez_compressed if compressed else np.savez)(path, **out)
-
-
-def load_npz(path: str | Path) -> dict[str, Any]:
-    """Read a conventions ``.npz`` into a dict (0-d arrays become Python scalars/str)."""
-    with np.load(path, allow_pickle=False) as z:
-        return {k: (z[k].item() if z[k].ndim == 0 else z[k]) for k in z.files}

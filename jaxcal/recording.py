@@ -1,46 +1,57 @@
-"""IMU recordings on disk: the ``.npz`` / ``.csv`` (+ ``.json`` sidecar) format of CONVENTIONS.md.
+"""IMU recordings: the one in-memory type (:class:`Recording`) and its ``.npz`` / ``.csv`` (+ ``.json``
+sidecar) format of CONVENTIONS.md.
 
 A recording is a set of named arrays sharing one sample axis of length ``N``:
 
-=================  =========  =======================================================
-key                shape      meaning (units)
-=================  =========  =======================================================
-``t``              (N,)       sample times (s), strictly increasing; required
-``acc``            (N, 3)     accelerometer output (LSB, or g if ``acc_unit == "g"``)
-``gyr``            (N, 3)     gyroscope output (LSB, or rad/s if ``gyr_unit == "rad/s"``)
-``temp``           (N,)       temperature (degC)
-``seq``            (N,)       integer sequence id; the samples of one id are contiguous
-``static``         (N,)       bool, sample known to be stationary
-``acc_ref``        (N, 3)     reference specific force (g), body frame
-``gyr_ref``        (N, 3)     reference body rate (rad/s)
-``pos_ref``        (N, 3)     reference position (m)
-``quat_ref``       (N, 4)     reference attitude, Hamilton [w, x, y, z], body to world
-``fs``             scalar     nominal sample rate (Hz)
-``acc_lsb_per_g``  () or (3,) datasheet accelerometer scale (LSB/g)
-``acc_bias_lsb``   () or (3,) datasheet accelerometer bias (LSB)
-``gyr_lsb_per_rads`` () or (3,) datasheet gyroscope scale (LSB/(rad/s))
-``gyr_bias_lsb``   () or (3,) datasheet gyroscope bias (LSB)
-``acc_unit``       str        ``"LSB"`` (default) or ``"g"``
-``gyr_unit``       str        ``"LSB"`` (default) or ``"rad/s"``
-=================  =========  =======================================================
+=====================  =========  =======================================================
+key                    shape      meaning (units)
+=====================  =========  =======================================================
+``t``                  (N,)       sample times (s), strictly increasing; required
+``acc``                (N, 3)     accelerometer output (LSB, or g if ``acc_unit == "g"``)
+``gyr``                (N, 3)     gyroscope output (LSB, or rad/s if ``gyr_unit == "rad/s"``)
+``temp``               (N,)       temperature (degC)
+``seq``                (N,)       integer sequence id; the samples of one id are contiguous
+``static``             (N,)       bool, sample known to be stationary
+``acc_ref``            (N, 3)     reference specific force (g), body frame
+``gyr_ref``            (N, 3)     reference body rate (rad/s)
+``pos_ref``            (N, 3)     reference position (m)
+``quat_ref``           (N, 4)     reference attitude, Hamilton [w, x, y, z], body to world
+``fs``                 scalar     nominal sample rate (Hz)
+``acc_lsb_per_g``      () or (3,) datasheet accelerometer scale (LSB/g)
+``acc_bias_lsb``       () or (3,) datasheet accelerometer bias (LSB)
+``gyr_lsb_per_rads``   () or (3,) datasheet gyroscope scale (LSB/(rad/s))
+``gyr_bias_lsb``       () or (3,) datasheet gyroscope bias (LSB)
+``acc_unit``           str        ``"LSB"`` (default) or ``"g"``
+``gyr_unit``           str        ``"LSB"`` (default) or ``"rad/s"``
+``mag``                (N, 3)     magnetometer output (uT)
+``ref_valid``          (N,)       bool, the reference pose may be used at this sample (a reader's mark)
+``section``            (N,)       integer pose label, index into ``section_names`` (-1: none)
+``section_names``      (K,)       str, the names of the labels of ``section``
+``gt_t``               (M,)       times (s, on the clock of ``t``) of the original reference pose track
+``gt_pos``             (M, 3)     that track's positions (m)
+``gt_quat``            (M, 4)     that track's attitudes, Hamilton [w, x, y, z], body to world
+``t0``                 scalar     the absolute time of ``t = 0`` (s, e.g. Unix time)
+=====================  =========  =======================================================
 
 At least one of ``acc`` and ``gyr`` must be present. A row of NaN in ``acc_ref``, ``gyr_ref``,
 ``pos_ref`` or ``quat_ref`` marks a reference gap (no reference at that sample); every other
-value must be finite. Keys not in this table are kept in
-:attr:`Recording.extra` and written back out (never silently dropped).
+value must be finite. Keys not in this table (format-specific ones such as a reader's ``meta_*``)
+are kept in :attr:`Recording.extra` and written back out (never silently dropped).
 
 CSV layout: a header row, then one row per sample, columns ``t, acc_x, acc_y, acc_z, gyr_x,
 gyr_y, gyr_z`` then any of ``temp, seq, static, acc_ref_x..z, gyr_ref_x..z, pos_ref_x..z,
-quat_ref_w, quat_ref_x, quat_ref_y, quat_ref_z``. Scalar metadata (``fs``, spec values, units,
-scalar extras) lives in a sidecar ``<stem>.json`` next to the ``.csv``. Unknown per-sample
-columns are kept as extra arrays (``foo_x, foo_y, foo_z`` as one ``(N, 3)`` array ``foo``).
+quat_ref_w, quat_ref_x, quat_ref_y, quat_ref_z, mag_x..z, ref_valid, section``. Scalar metadata
+(``fs``, ``t0``, spec values, units, scalar extras), ``section_names`` and the pose track
+``gt_*`` live in a sidecar ``<stem>.json`` next to the ``.csv``. Unknown per-sample columns are
+kept as extra arrays (``foo_x, foo_y, foo_z`` as one ``(N, 3)`` array ``foo``).
 
-This is the only I/O module of the library besides :mod:`jaxcal.model_io`; all functions take
-explicit paths. Any problem with a file raises :class:`RecordingError` whose one-line message
-names the file, the key or column, and the row. Besides shapes and types, validation refuses what
-the data contradict (:func:`check_plausible`: a declared unit or datasheet scale off by a large
-factor; an ``fs`` the spacing of ``t`` does not match). Files are written whole or not at all
-(:func:`atomic_output`).
+:class:`Recording` is the only in-memory recording: the readers of foreign formats
+(:mod:`jaxcal.readers`) return one, and this module is its one load / save path
+(:func:`load_recording`, :func:`save_recording`); all functions take explicit paths. Any problem
+with a file raises :class:`RecordingError` whose one-line message names the file, the key or
+column, and the row. Besides shapes and types, validation refuses what the data contradict
+(:func:`check_plausible`: a declared unit or datasheet scale off by a large factor; an ``fs`` the
+spacing of ``t`` does not match). Files are written whole or not at all (:func:`atomic_output`).
 """
 
 from __future__ import annotations
@@ -54,28 +65,46 @@ import os
 import secrets
 import zipfile
 import zlib
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping
+from typing import Any
 
 import numpy as np
+
+from jaxcal.constants import PHYS_UNIT, SENSORS
+from jaxcal.sequences import first_repeated_run, sequence_bounds  # sequence_bounds re-exported: sequence runs live in jaxcal.sequences
 
 __all__ = [
     "ACC_UNITS",
     "GYR_UNITS",
+    "KNOWN_KEYS",
+    "REF_GAP_KEYS",
+    "NPZ_READ_ERRORS",
     "Recording",
     "RecordingError",
     "load_recording",
     "save_recording",
+    "recording_from_dict",
     "validate_recording",
     "sequence_slices",
     "check_plausible",
+    "implausible",
     "atomic_output",
     "read_npz_arrays",
+    "MAX_COUNT",
+    "MAX_VALUE",
+    "MAX_TIME",
+    "ABS_ZERO_C",
+    "ACC_NORM_G",
+    "GYR_MEDIAN_MAX",
+    "GYR_Q99_MAX",
+    "FS_TOLERANCE",
+    "QUAT_NORM_TOL",
 ]
 
-ACC_UNITS = ("LSB", "g")
-GYR_UNITS = ("LSB", "rad/s")
+ACC_UNITS = ("LSB", PHYS_UNIT["acc"])
+GYR_UNITS = ("LSB", PHYS_UNIT["gyr"])
 
 # Per-sample arrays: name -> trailing shape (() for (N,)) and CSV component suffixes.
 _VECTOR_KEYS: dict[str, tuple[str, ...]] = {
@@ -85,19 +114,29 @@ _VECTOR_KEYS: dict[str, tuple[str, ...]] = {
     "gyr_ref": ("x", "y", "z"),
     "pos_ref": ("x", "y", "z"),
     "quat_ref": ("w", "x", "y", "z"),
+    "mag": ("x", "y", "z"),
 }
 # Reference keys: a row of NaN marks a reference gap ("no reference here"); inf is never allowed.
 REF_GAP_KEYS = ("acc_ref", "gyr_ref", "pos_ref", "quat_ref")
-_SAMPLE_SCALAR_KEYS = ("temp", "seq", "static")
-_META_SCALAR_KEYS = ("fs",)
+_SAMPLE_SCALAR_KEYS = ("temp", "seq", "static", "ref_valid", "section")
+_FLAG_KEYS = ("static", "ref_valid")  # per-sample booleans (or 0/1)
+_ID_KEYS = {"seq": "sequence id", "section": "section label"}  # per-sample integers
+_META_SCALAR_KEYS = ("fs", "t0")
 _META_SPEC_KEYS = ("acc_lsb_per_g", "acc_bias_lsb", "gyr_lsb_per_rads", "gyr_bias_lsb")
 _UNIT_KEYS = ("acc_unit", "gyr_unit")
-# Column order of a written CSV.
-_CSV_ORDER = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref")
+_NAME_KEYS = ("section_names",)
+# The original reference pose track (its own length M): name -> trailing shape.
+_TRACK_KEYS: dict[str, tuple[int, ...]] = {"gt_t": (), "gt_pos": (3,), "gt_quat": (4,)}
+# Column order of a written CSV; the sidecar holds the rest.
+_CSV_ORDER = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref",
+              "mag", "ref_valid", "section")
+_SIDECAR_KEYS = _META_SCALAR_KEYS + _META_SPEC_KEYS + _NAME_KEYS + tuple(_TRACK_KEYS)
 
 KNOWN_KEYS = (
     ("t",) + tuple(_VECTOR_KEYS) + _SAMPLE_SCALAR_KEYS + _META_SCALAR_KEYS + _META_SPEC_KEYS + _UNIT_KEYS
+    + _NAME_KEYS + tuple(_TRACK_KEYS)
 )
+"""Every key with a :class:`Recording` field (all others go to :attr:`Recording.extra`)."""
 
 
 class RecordingError(ValueError):
@@ -106,9 +145,39 @@ class RecordingError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class Recording:
-    """One IMU recording (numpy arrays; optional fields are ``None``). See the module docstring.
+    """One IMU recording, the only in-memory recording of jaxcal (numpy arrays; absent optional
+    fields are ``None``). Shapes and units as in the module docstring (CONVENTIONS.md).
 
-    Construct directly (then call :func:`validate_recording`) or with :func:`load_recording`.
+    Construct directly (then call :func:`validate_recording`), with :func:`recording_from_dict`,
+    :func:`load_recording` or a reader (:func:`jaxcal.readers.read`).
+
+    Args:
+        t: (N,) sample times (s), strictly increasing; required.
+        acc: (N, 3) accelerometer output, in ``acc_unit``.
+        gyr: (N, 3) gyroscope output, in ``gyr_unit``.
+        temp: (N,) sensor temperature (degC).
+        seq: (N,) integer sequence id; the samples of one id are contiguous.
+        static: (N,) bool, sample known to be stationary.
+        acc_ref: (N, 3) reference specific force (g), body frame; a NaN row is a reference gap.
+        gyr_ref: (N, 3) reference body rate (rad/s); a NaN row is a reference gap.
+        pos_ref: (N, 3) reference position (m); a NaN row is a reference gap.
+        quat_ref: (N, 4) reference attitude, Hamilton [w, x, y, z], body to world; NaN row = gap.
+        fs: nominal sample rate (Hz).
+        acc_lsb_per_g: () or (3,) datasheet accelerometer scale (LSB/g).
+        acc_bias_lsb: () or (3,) datasheet accelerometer bias (LSB).
+        gyr_lsb_per_rads: () or (3,) datasheet gyroscope scale (LSB/(rad/s)).
+        gyr_bias_lsb: () or (3,) datasheet gyroscope bias (LSB).
+        acc_unit: ``"LSB"`` (raw counts, default) or ``"g"``.
+        gyr_unit: ``"LSB"`` (raw counts, default) or ``"rad/s"``.
+        mag: (N, 3) magnetometer output (uT).
+        ref_valid: (N,) bool, where the reference pose may be used (a reader's mark of track gaps).
+        section: (N,) integer pose label, index into ``section_names`` (-1: no label).
+        section_names: (K,) str, the name of each ``section`` label.
+        gt_t: (M,) times (s, clock of ``t``) of the original reference pose track, increasing.
+        gt_pos: (M, 3) positions (m) of that track.
+        gt_quat: (M, 4) attitudes of that track, Hamilton [w, x, y, z], body to world.
+        t0: absolute time (s, e.g. Unix time) of ``t = 0``.
+        extra: any other named arrays (format-specific, e.g. ``meta_*``); kept and written back.
     """
 
     t: np.ndarray
@@ -128,6 +197,14 @@ class Recording:
     gyr_bias_lsb: np.ndarray | None = None
     acc_unit: str = "LSB"
     gyr_unit: str = "LSB"
+    mag: np.ndarray | None = None
+    ref_valid: np.ndarray | None = None
+    section: np.ndarray | None = None
+    section_names: np.ndarray | None = None
+    gt_t: np.ndarray | None = None
+    gt_pos: np.ndarray | None = None
+    gt_quat: np.ndarray | None = None
+    t0: float | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
@@ -137,7 +214,7 @@ class Recording:
 
     def sensors(self) -> tuple[str, ...]:
         """The sensors present, in the order ``("acc", "gyr")``."""
-        return tuple(s for s in ("acc", "gyr") if getattr(self, s) is not None)
+        return tuple(s for s in SENSORS if getattr(self, s) is not None)
 
     def replace(self, **changes: Any) -> "Recording":
         """A copy with some fields replaced (``dataclasses.replace``)."""
@@ -174,8 +251,16 @@ def _as_str(v: Any) -> str:
 def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: bool = False) -> Recording:
     """Build and validate a :class:`Recording` from a ``name -> array`` mapping.
 
-    Known names go to their fields; unknown ones to ``extra``. Unsigned-integer arrays of known
-    keys become ``int64`` (so no later subtraction wraps around). Raises :class:`RecordingError`.
+    Known names (:data:`KNOWN_KEYS`) go to their fields; unknown ones to ``extra``. Unsigned-integer
+    arrays of known keys become ``int64`` (so no later subtraction wraps around).
+
+    Args:
+        d: ``name -> array`` (or scalar / unit string) with CONVENTIONS.md names.
+        source: file name (or other label) put in front of an error message.
+        csv_rows: give CSV line numbers in error messages (see :func:`validate_recording`).
+
+    Raises:
+        RecordingError: the mapping is not a valid recording (one line: what and where).
     """
     kw: dict[str, Any] = {}
     extra: dict[str, np.ndarray] = {}
@@ -185,8 +270,8 @@ def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: boo
                 kw[k] = _as_str(v)
             except TypeError:
                 raise _fail(source, f"key '{k}': expected a unit string, got shape {np.shape(v)}") from None
-        elif k == "fs":
-            kw[k] = _sample_rate(source, v)
+        elif k in _META_SCALAR_KEYS:
+            kw[k] = _meta_scalar(source, k, v)
         elif k in KNOWN_KEYS:
             kw[k] = _signed(source, k, np.asarray(v))
         else:
@@ -198,11 +283,14 @@ def recording_from_dict(d: Mapping[str, Any], source: str = "", *, csv_rows: boo
     return rec
 
 
-def _sample_rate(source: str, v: Any) -> float:
-    """``fs`` as a float; a real number is required (no string, bool or complex)."""
+_META_SCALAR_WHAT = {"fs": "a scalar sample rate in Hz", "t0": "a scalar time in s"}
+
+
+def _meta_scalar(source: str, name: str, v: Any) -> float:
+    """``fs`` or ``t0`` as a float; a real number is required (no string, bool or complex)."""
     a = np.asarray(v)
     if a.shape != () or not _is_real(a.dtype):
-        raise _fail(source, f"key 'fs': expected a scalar sample rate in Hz, got {a.dtype} of shape {a.shape}")
+        raise _fail(source, f"key '{name}': expected {_META_SCALAR_WHAT[name]}, got {a.dtype} of shape {a.shape}")
     return float(a)
 
 
@@ -249,12 +337,15 @@ def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = Fal
     """Check a recording against CONVENTIONS.md; raise :class:`RecordingError` on the first problem.
 
     Checks: ``t`` present, 1-D, finite, strictly increasing; ``acc`` or ``gyr`` present; every
-    per-sample key has ``N`` rows and the right trailing shape, real numbers (``static`` may be
-    boolean), finite and of plausible size (raw counts within 32 bits), except that a whole row
-    of NaN in a reference key (:data:`REF_GAP_KEYS`) marks a reference gap; units known; ``seq``
-    integer-valued with contiguous ids; ``static`` boolean; ``quat_ref`` of unit norm (gap rows
-    skipped); metadata scalar or (3,), finite, scales positive, ``fs`` positive and matching the
-    spacing of ``t``; and the declared units plausible (:func:`check_plausible`).
+    per-sample key has ``N`` rows and the right trailing shape, real numbers (``static`` and
+    ``ref_valid`` may be boolean), finite and of plausible size (raw counts within 32 bits), except
+    that a whole row of NaN in a reference key (:data:`REF_GAP_KEYS`) marks a reference gap; units
+    known; ``seq`` integer-valued with contiguous ids; ``section`` integer-valued, naming an entry of
+    ``section_names`` (1-D strings) where both are given; ``static`` and ``ref_valid`` boolean;
+    ``quat_ref`` of unit norm (gap rows skipped); the pose track ``gt_t`` 1-D, finite, strictly
+    increasing, with ``gt_pos`` / ``gt_quat`` of matching length and finite; metadata scalar or
+    (3,), finite, scales positive, ``fs`` positive and matching the spacing of ``t``, ``t0``
+    finite; no extra named like a field; and the declared units plausible (:func:`check_plausible`).
 
     Args:
         rec: the recording.
@@ -271,7 +362,10 @@ def validate_recording(rec: Recording, source: str = "", *, csv_rows: bool = Fal
         _validate_per_sample(rec, name, (), n, source, csv_rows)
     _validate_seq_static(rec, source, csv_rows)
     _validate_quaternions(rec, source, csv_rows)
+    _validate_names(rec, source, csv_rows)
+    _validate_track(rec, source)
     _validate_meta(rec, source)
+    _validate_extra(rec, source)
     _validate_fs(rec, source)
     check_plausible(rec, source)
 
@@ -312,7 +406,7 @@ def _validate_units(rec: Recording, source: str) -> None:
         raise _fail(source, f"key 'gyr_unit': unknown unit {rec.gyr_unit!r} (expected one of {', '.join(GYR_UNITS)})")
 
 
-def _cell_label(name: str, comp: int | None, csv_rows: bool) -> str:
+def _cell_label(name: str, comp: int | np.integer | None, csv_rows: bool) -> str:
     if comp is not None and csv_rows:
         return f"column '{name}_{_VECTOR_KEYS[name][comp]}'"
     if comp is not None:
@@ -326,8 +420,8 @@ def _value_limits(rec: Recording, name: str) -> tuple[float, float, str]:
         return -MAX_COUNT, MAX_COUNT, "raw counts beyond 32 bits"
     if name == "temp":
         return ABS_ZERO_C, MAX_VALUE, "a temperature below absolute zero or implausibly large"
-    if name == "seq":
-        return -(2.0**53), 2.0**53, "a sequence id beyond 2**53"
+    if name in _ID_KEYS:
+        return -(2.0**53), 2.0**53, f"a {_ID_KEYS[name]} beyond 2**53"
     return -MAX_VALUE, MAX_VALUE, f"implausibly large (beyond {MAX_VALUE:.0e})"
 
 
@@ -338,7 +432,7 @@ def _validate_per_sample(rec: Recording, name: str, trailing: tuple[int, ...], n
     if v is None:
         return
     a = np.asarray(v)
-    _check_numeric(source, name, a, allow_bool=name == "static")
+    _check_numeric(source, name, a, allow_bool=name in _FLAG_KEYS)
     want = "(N,)" if not trailing else f"(N, {trailing[0]})"
     if a.ndim != 1 + len(trailing) or a.shape[1:] != trailing:
         raise _fail(source, f"key '{name}': expected shape {want}, got {a.shape}")
@@ -364,28 +458,32 @@ def _validate_per_sample(rec: Recording, name: str, trailing: tuple[int, ...], n
 
 
 def _validate_seq_static(rec: Recording, source: str, csv_rows: bool) -> None:
-    """``seq``: integer ids, each sequence contiguous; ``static``: booleans (or 0/1)."""
-    if rec.seq is not None:
-        s = np.asarray(rec.seq)
+    """``seq`` / ``section``: integer ids, each sequence contiguous; ``static`` / ``ref_valid``:
+    booleans (or 0/1)."""
+    for name, what in _ID_KEYS.items():
+        v = getattr(rec, name)
+        if v is None:
+            continue
+        s = np.asarray(v)
         if not np.all(s == np.round(s)):
             i = int(np.flatnonzero(s != np.round(s))[0])
-            raise _fail(source, f"key 'seq' {_row_text(i, csv_rows)}: sequence id {s[i]} is not an integer")
-        starts = np.concatenate([[0], np.flatnonzero(np.diff(s) != 0) + 1])
-        ids = s[starts]
-        _, first = np.unique(ids, return_index=True)
-        if first.size != ids.size:
-            dup = np.setdiff1d(np.arange(ids.size), first)[0]
-            i = int(starts[dup])
+            raise _fail(source, f"key '{name}' {_row_text(i, csv_rows)}: {what} {s[i]} is not an integer")
+    if rec.seq is not None:
+        i = first_repeated_run(rec.seq)
+        if i is not None:
             raise _fail(
                 source,
-                f"key 'seq' {_row_text(i, csv_rows)}: sequence id {int(s[i])} appears again after "
+                f"key 'seq' {_row_text(i, csv_rows)}: sequence id {int(np.asarray(rec.seq)[i])} appears again after "
                 "other ids (samples of one sequence must be contiguous)",
             )
-    if rec.static is not None:
-        a = np.asarray(rec.static)
+    for name in _FLAG_KEYS:
+        v = getattr(rec, name)
+        if v is None:
+            continue
+        a = np.asarray(v)
         if a.dtype != np.bool_ and not np.all((a == 0) | (a == 1)):
             i = int(np.flatnonzero((a != 0) & (a != 1))[0])
-            raise _fail(source, f"key 'static' {_row_text(i, csv_rows)}: expected a boolean (0/1), got {a[i]}")
+            raise _fail(source, f"key '{name}' {_row_text(i, csv_rows)}: expected a boolean (0/1), got {a[i]}")
 
 
 def _validate_quaternions(rec: Recording, source: str, csv_rows: bool) -> None:
@@ -400,10 +498,52 @@ def _validate_quaternions(rec: Recording, source: str, csv_rows: bool) -> None:
                             "not a unit quaternion (Hamilton [w, x, y, z])")
 
 
+def _validate_names(rec: Recording, source: str, csv_rows: bool) -> None:
+    """``section_names``: 1-D strings; every ``section`` label is -1 or names one of them."""
+    if rec.section_names is None:
+        return
+    names = np.asarray(rec.section_names)
+    if names.ndim != 1 or names.dtype.kind not in "US":
+        raise _fail(source, f"key 'section_names': expected a list of strings (K,), got {names.dtype} of shape {names.shape}")
+    if rec.section is None:
+        return
+    sec = np.asarray(rec.section)
+    bad = np.flatnonzero((sec < -1) | (sec >= names.shape[0]))
+    if bad.size:
+        i = int(bad[0])
+        raise _fail(source, f"key 'section' {_row_text(i, csv_rows)}: label {sec[i]} names none of the "
+                            f"{names.shape[0]} 'section_names' (-1 marks no section)")
+
+
+def _validate_track(rec: Recording, source: str) -> None:
+    """The pose track: ``gt_t`` 1-D, finite, strictly increasing; ``gt_pos`` (M, 3) and ``gt_quat``
+    (M, 4) real, finite, with M = len(gt_t) where ``gt_t`` is given."""
+    m = None
+    for name, trailing in _TRACK_KEYS.items():
+        v = getattr(rec, name)
+        if v is None:
+            continue
+        a = np.asarray(v)
+        _check_numeric(source, name, a)
+        want = ("(M,)" if not trailing else f"(M, {trailing[0]})") + ("" if m is None else f" with M = len(gt_t) = {m}")
+        if a.ndim != 1 + len(trailing) or a.shape[1:] != trailing or (m is not None and a.shape[0] != m):
+            raise _fail(source, f"key '{name}': expected shape {want}, got {a.shape}")
+        af = a.astype(np.float64)
+        if not np.all(np.isfinite(af)):
+            raise _fail(source, f"key '{name}' row {int(np.argwhere(~np.isfinite(af))[0][0])}: non-finite value")
+        if name == "gt_t":
+            m = a.shape[0]
+            dec = np.flatnonzero(np.diff(af) <= 0)
+            if dec.size:
+                raise _fail(source, f"key 'gt_t' row {int(dec[0]) + 1}: times not strictly increasing")
+
+
 def _validate_meta(rec: Recording, source: str) -> None:
-    """``fs`` positive and finite; datasheet values real, scalar or (3,), finite, scales positive."""
+    """``fs`` positive and finite; ``t0`` finite; datasheet values real, scalar or (3,), finite, scales positive."""
     if rec.fs is not None and not (math.isfinite(rec.fs) and rec.fs > 0):
         raise _fail(source, f"key 'fs': sample rate must be positive and finite, got {rec.fs}")
+    if rec.t0 is not None and not math.isfinite(rec.t0):
+        raise _fail(source, f"key 't0': must be finite, got {rec.t0}")
     for name in _META_SPEC_KEYS:
         v = getattr(rec, name)
         if v is None:
@@ -437,6 +577,13 @@ def _validate_fs(rec: Recording, source: str) -> None:
                             f"{1.0 / rate:.6g} s); fix 'fs' or leave it out")
 
 
+def _validate_extra(rec: Recording, source: str) -> None:
+    """No extra may carry a field's name (it would shadow the field in :meth:`Recording.to_dict`)."""
+    clash = [k for k in rec.extra if k in KNOWN_KEYS]
+    if clash:
+        raise _fail(source, f"key '{clash[0]}' is a field of Recording; pass it as {clash[0]}=..., not in extra")
+
+
 # ----------------------------------------------------------------------------- plausibility
 
 
@@ -447,6 +594,11 @@ def implausible(sensor: str, x: np.ndarray, how: str) -> str | None:
     outside, the unit is off by a large factor (m/s^2 declared as g reads ~9.8). A median rate
     above :data:`GYR_MEDIAN_MAX` or a 99th percentile above :data:`GYR_Q99_MAX` (2000 deg/s) means
     deg/s declared as rad/s. ``how`` says where the values came from (e.g. "after unit conversion").
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"``.
+        x: (N, 3) values, declared in g (``acc``) or rad/s (``gyr``).
+        how: where the values came from, for the message.
     """
     with np.errstate(over="ignore", invalid="ignore"):  # huge values are refused elsewhere, with their row
         norm = np.linalg.norm(np.asarray(x, np.float64), axis=-1).ravel()
@@ -468,7 +620,6 @@ def implausible(sensor: str, x: np.ndarray, how: str) -> str | None:
 
 
 _SCALE_KEY = {"acc": ("acc_lsb_per_g", "acc_bias_lsb"), "gyr": ("gyr_lsb_per_rads", "gyr_bias_lsb")}
-_PHYS = {"acc": "g", "gyr": "rad/s"}
 _SENSOR_WORD = {"acc": "accelerometer", "gyr": "gyroscope"}
 
 
@@ -476,8 +627,8 @@ def _physical_values(rec: Recording, s: str) -> tuple[np.ndarray, str, str] | No
     """Sensor ``s`` in g / rad/s with how it got there and what to blame, or ``None`` (raw counts
     without a datasheet scale cannot be judged)."""
     y = np.asarray(getattr(rec, s), np.float64)
-    if getattr(rec, f"{s}_unit") == _PHYS[s]:
-        return y, f"with {s}_unit = {_PHYS[s]!r}", f"the declared {_SENSOR_WORD[s]} unit is wrong"
+    if getattr(rec, f"{s}_unit") == PHYS_UNIT[s]:
+        return y, f"with {s}_unit = {PHYS_UNIT[s]!r}", f"the declared {_SENSOR_WORD[s]} unit is wrong"
     scale_key, bias_key = _SCALE_KEY[s]
     scale, bias = getattr(rec, scale_key), getattr(rec, bias_key)
     if scale is None:
@@ -492,8 +643,12 @@ def check_plausible(rec: Recording, source: str = "") -> None:
     Judges ``acc``/``gyr`` declared in g / rad/s, raw counts converted with the datasheet scale
     where the recording gives one, and the labels ``acc_ref`` (g) and ``gyr_ref`` (rad/s).
     Raises :class:`RecordingError` naming the key.
+
+    Args:
+        rec: the recording.
+        source: prefix of the error message (e.g. the file); empty: none.
     """
-    for s in ("acc", "gyr"):
+    for s in SENSORS:
         got = None if getattr(rec, s) is None else _physical_values(rec, s)
         why = None if got is None else implausible(s, got[0], got[1])
         if why:
@@ -502,14 +657,7 @@ def check_plausible(rec: Recording, source: str = "") -> None:
         x = getattr(rec, key)
         why = None if x is None else implausible(s, x, "in the labels")
         if why:
-            raise _fail(source, f"key '{key}': {why}; labels must be in {_PHYS[s]}")
-
-
-def sequence_bounds(seq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(starts, ends)`` of the runs of equal consecutive ids in ``seq`` (ends exclusive)."""
-    seq = np.asarray(seq)
-    starts = np.flatnonzero(np.r_[True, seq[1:] != seq[:-1]])
-    return starts, np.r_[starts[1:], seq.shape[0]]
+            raise _fail(source, f"key '{key}': {why}; labels must be in {PHYS_UNIT[s]}")
 
 
 def sequence_slices(rec: Recording) -> list[slice]:
@@ -616,7 +764,7 @@ def _save_csv(rec: Recording, path: Path, sidecar: Path) -> None:
         else:
             header.append(name)
             columns.append(a)
-    for name in _META_SCALAR_KEYS + _META_SPEC_KEYS:
+    for name in _SIDECAR_KEYS:
         v = getattr(rec, name)
         if v is not None:
             meta[name] = _json_value(v)
@@ -697,22 +845,26 @@ def _load_csv(path: Path) -> dict[str, Any]:
         if name in col:
             out[name] = col[name]
             used.add(name)
-    if "seq" in col:
-        s = col["seq"]
+    for name, what in _ID_KEYS.items():
+        if name not in col:
+            continue
+        s = col[name]
         bad = np.flatnonzero(~np.isfinite(s) | (s != np.round(s)))
         if bad.size:
             i = int(bad[0])
-            raise _fail(src, f"column 'seq' row {i} (line {i + 2}): sequence id {s[i]} is not an integer")
-        out["seq"] = s.astype(np.int64)
-        used.add("seq")
-    if "static" in col:
-        s = col["static"]
+            raise _fail(src, f"column '{name}' row {i} (line {i + 2}): {what} {s[i]} is not an integer")
+        out[name] = s.astype(np.int64)
+        used.add(name)
+    for name in _FLAG_KEYS:
+        if name not in col:
+            continue
+        s = col[name]
         bad = np.flatnonzero((s != 0) & (s != 1))
         if bad.size:
             i = int(bad[0])
-            raise _fail(src, f"column 'static' row {i} (line {i + 2}): expected 0/1 or true/false, got {s[i]}")
-        out["static"] = s.astype(bool)
-        used.add("static")
+            raise _fail(src, f"column '{name}' row {i} (line {i + 2}): expected 0/1 or true/false, got {s[i]}")
+        out[name] = s.astype(bool)
+        used.add(name)
     rest = [h for h in header if h not in used]
     # Unknown columns: group foo_x/foo_y/foo_z triples into (N, 3) extras.
     for h in list(rest):
@@ -763,6 +915,16 @@ def _sidecar_value(side: Path, k: str, v: Any) -> np.ndarray:
 def load_recording(path: str | os.PathLike) -> Recording:
     """Read and validate a recording (``.npz``, or ``.csv`` with optional ``.json`` sidecar).
 
+    The one way a recording file comes into memory (foreign formats: :func:`jaxcal.readers.read`).
+    Keys of :data:`KNOWN_KEYS` become fields, any other array goes to ``Recording.extra``.
+
+    Args:
+        path: the ``.npz`` or ``.csv`` file (the format follows the extension).
+
+    Returns:
+        The validated :class:`Recording` (arrays as stored: float32 stays float32, counts stay
+        integers; unsigned integers become ``int64``).
+
     Raises:
         RecordingError: missing/unreadable file, unknown extension, or any check of
             :func:`validate_recording` failing; the message names the file, key/column and row.
@@ -784,9 +946,17 @@ def load_recording(path: str | os.PathLike) -> Recording:
 def save_recording(rec: Recording, path: str | os.PathLike) -> None:
     """Validate ``rec`` and write it as ``.npz`` or ``.csv`` (+ ``<stem>.json`` sidecar).
 
-    The format follows the extension. Files are written whole or not at all
-    (:func:`atomic_output`). Raises :class:`RecordingError` if ``rec`` is invalid or
-    the extension is unknown.
+    The one way a recording goes to a file. Arrays are written with their own dtypes (``.npz``,
+    ``savez_compressed``; no down-casting here). Files are written whole or not at all
+    (:func:`atomic_output`).
+
+    Args:
+        rec: the recording (validated first).
+        path: the ``.npz`` or ``.csv`` file to write (the format follows the extension).
+
+    Raises:
+        RecordingError: ``rec`` is invalid, the extension is unknown, or the file cannot be
+            written; one line naming the file.
     """
     p = Path(path)
     ext = p.suffix.lower()

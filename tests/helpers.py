@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from jaxcal.recording import Recording, recording_from_dict
+
 G0 = 9.80665
 FS = 200.0
 T_END = 60.0
@@ -59,7 +61,9 @@ def rot_of(q_wxyz):
     return Rotation.from_quat(np.concatenate([q_wxyz[:, 1:], q_wxyz[:, :1]], 1))
 
 
-def make_rec(with_track: bool) -> dict:
+def make_rec(with_track: bool) -> Recording:
+    """The analytic rig as a :class:`Recording` (acc in g, gyr in rad/s, pose on the IMU grid and,
+    ``with_track``, a 240 Hz pose track ``gt_*`` reaching 0.5 s beyond both ends)."""
     t = np.arange(int(T_END * FS)) / FS
     rot = truth_rot(t)
     f = rot.inv().apply(truth_pos(t, 2) / G0 + np.array([0.0, 0.0, 1.0]))
@@ -68,4 +72,4 @@ def make_rec(with_track: bool) -> dict:
     if with_track:
         tg = np.arange(-0.5, T_END + 0.5, 1 / 240.0)
         rec.update(gt_t=tg, gt_pos=truth_pos(tg), gt_quat=quat_wxyz(truth_rot(tg)))
-    return rec
+    return recording_from_dict(rec, "analytic rig")

@@ -20,7 +20,7 @@ from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose.align import EUROC_GT_COLUMNS, align_recording
 from jaxcal.diagnose.frames import polar, rotation_split
 from jaxcal.diagnose.stress import GOALS, StressConfig, alignment_errors, compose_truth, stress
-from jaxcal.recording import load_recording, recording_from_dict, save_recording
+from jaxcal.recording import Recording, load_recording, recording_from_dict, save_recording
 
 TUMVI = Path(__file__).resolve().parent.parent / "data" / "tumvi_room1_512_16" / "room1.npz"
 CFG = StressConfig(rate_hz=100.0, jitter_s=0.002, dropout_frac=0.02, vibration_rms_g=0.2,
@@ -32,10 +32,9 @@ def rig():
     """The analytic rig with sensor noise and a gyro bias, stressed by :data:`CFG`; aligned."""
     rng = np.random.default_rng(3)
     rec = make_rec(with_track=True)
-    n = len(rec["t"])
-    rec["acc"] = rec["acc"] + 3e-3 * rng.standard_normal((n, 3))
-    rec["gyr"] = rec["gyr"] + 1e-3 * rng.standard_normal((n, 3)) + np.array([0.01, -0.02, 0.005])
-    srec, truth = stress(rec, CFG, rng)
+    acc = rec.acc + 3e-3 * rng.standard_normal((rec.n, 3))
+    gyr = rec.gyr + 1e-3 * rng.standard_normal((rec.n, 3)) + np.array([0.01, -0.02, 0.005])
+    srec, truth = stress(rec.replace(acc=acc, gyr=gyr), CFG, rng)
     return srec, truth, align_recording(srec)
 
 
@@ -69,9 +68,9 @@ def test_groundtruth_is_the_imu_pose_on_the_imu_clock(rig):
     gt = res.groundtruth
     assert gt.shape[1] == len(EUROC_GT_COLUMNS) == 17
     t = gt[:, 0] * 1e-9
-    keep = (t > 2.0) & (t < srec["t"][-1] - 2.0)
+    keep = (t > 2.0) & (t < srec.t[-1] - 2.0)
     t, g = t[keep], gt[keep]
-    assert len(t) > 0.8 * len(srec["t"])
+    assert len(t) > 0.8 * srec.n
     pos_err = np.linalg.norm(g[:, 1:4] - truth_pos(t), axis=1)
     q = Rotation.from_quat(g[:, [5, 6, 7, 4]])
     ang = np.degrees((q.inv() * truth_rot(t)).magnitude())
@@ -88,7 +87,7 @@ def test_groundtruth_is_the_imu_pose_on_the_imu_clock(rig):
 def test_cli_align_writes_the_conventions_files(rig, tmp_path):
     srec, _, res = rig
     p = tmp_path / "rig.npz"
-    save_recording(recording_from_dict(srec), p)
+    save_recording(srec, p)
     assert main(["align", str(p), "--out", str(tmp_path / "al")]) == 0
     a = json.loads((tmp_path / "al" / "align.json").read_text())
     for k in ("tau", "R_ref_imu", "r", "stderr"):
@@ -102,7 +101,7 @@ def test_cli_align_writes_the_conventions_files(rig, tmp_path):
     assert (tmp_path / "al" / "align_residuals.png").exists()
     # no pose: one line, exit 2
     q = tmp_path / "nopose.npz"
-    save_recording(recording_from_dict({k: v for k, v in srec.items() if k in ("t", "acc", "gyr", "acc_unit", "gyr_unit")}), q)
+    save_recording(Recording(t=srec.t, acc=srec.acc, gyr=srec.gyr, acc_unit=srec.acc_unit, gyr_unit=srec.gyr_unit), q)
     assert main(["align", str(q), "--out", str(tmp_path / "x")]) == 2
     assert not (tmp_path / "x").exists()
 

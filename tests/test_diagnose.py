@@ -4,7 +4,6 @@ with known concealed effects (independent truth: simulated parameters, closed fo
 from __future__ import annotations
 
 import json
-import os
 
 import jax
 import jax.numpy as jnp
@@ -34,27 +33,28 @@ def _inputs(n=500, seed=0):
 
 @pytest.mark.parametrize("sensor", ["acc", "gyr"])
 @pytest.mark.parametrize("kind", ["diag", "affine"])
-def test_zero_effects_is_the_baseline(sensor, kind):
-    with jax.enable_x64(True):
-        inp = E.as_jax(_inputs())
-        beta = E.identity_beta(kind) + 0.01 * np.arange(E.N_BASE[kind])
-        y = E.model_output(kind, sensor, jnp.asarray(beta), jnp.zeros(E.N_THETA[sensor], jnp.float64), inp)
-        x = inp.f if sensor == "acc" else inp.w
-        want = E.baseline_apply(kind, jnp.asarray(beta), x)
-        np.testing.assert_allclose(np.asarray(y), np.asarray(want), atol=1e-12)
-        # and a non-zero effect changes it (the test can fail)
-        th = np.zeros(E.N_THETA[sensor])
-        th[E.slot(sensor, "bias_drift").start] = 1e-3
-        y2 = E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(th), inp)
-        assert np.max(np.abs(np.asarray(y2 - y))) > 1e-4
+def test_zero_effects_is_the_baseline(x64, sensor, kind):
+    inp = E.as_jax(_inputs())
+    beta = E.identity_beta(kind) + 0.01 * np.arange(E.N_BASE[kind])
+    y = E.model_output(kind, sensor, jnp.asarray(beta), jnp.zeros(E.N_THETA[sensor], jnp.float64), inp)
+    x = inp.f if sensor == "acc" else inp.w
+    want = E.baseline_apply(kind, jnp.asarray(beta), x)
+    np.testing.assert_allclose(np.asarray(y), np.asarray(want), atol=1e-12)
+    # and a non-zero effect changes it (the test can fail)
+    th = np.zeros(E.N_THETA[sensor])
+    th[E.slot(sensor, "bias_drift").start] = 1e-3
+    y2 = E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(th), inp)
+    assert np.max(np.abs(np.asarray(y2 - y))) > 1e-4
 
 
 def test_lever_arm_closed_form():
     # rotation about z with rate w(t) and angular acceleration a: a sensor at r = (R, 0, 0) feels
     # centripetal -w^2 R along x and tangential a R along y (in g)
     n, R = 50, 0.1
-    w = np.zeros((n, 3)); w[:, 2] = 2.0
-    wd = np.zeros((n, 3)); wd[:, 2] = 5.0
+    w = np.zeros((n, 3))
+    w[:, 2] = 2.0
+    wd = np.zeros((n, 3))
+    wd[:, 2] = 5.0
     inp = E.Inputs(jnp.zeros((n, 3)), jnp.asarray(w), jnp.asarray(wd), jnp.zeros(n), jnp.zeros(n), jnp.asarray(0.01))
     th = E.theta_from_params("acc", {"lever_arm": {"r": np.array([R, 0, 0])}})
     x = np.asarray(E.sensor_input("acc", jnp.asarray(th), inp))
@@ -98,7 +98,7 @@ def test_local_level_filter_matches_naive_kalman(lam):
     np.testing.assert_allclose(ll_innovations(x, lam), ref, atol=1e-10)
 
 
-def test_refit_whitening_is_the_selection_whitening():
+def test_refit_whitening_is_the_selection_whitening(x64):
     # the joint refit (JAX scan) and the tests (numpy) must whiten with the same filter
     from jaxcal.diagnose.refit import _filters, _whiten
     from jaxcal.diagnose.whiten import ARModel, theta_of
@@ -107,8 +107,7 @@ def test_refit_whitening_is_the_selection_whitening():
     ars = [ARModel(np.array([0.3, -0.1]), 1.3, 2, theta_of(1e-4), 300, 1e-4), ARModel(np.zeros(0), 0.7, 0, 1.0, 0, 0.0),
            ARModel(np.array([0.5]), 2.0, 1, theta_of(1e-6), 300, 1e-6)]
     taps, sig, ll = _filters(ars, len(r))
-    with jax.enable_x64(True):
-        a = np.asarray(_whiten(jnp.asarray(r), jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(x) for x in ll)))
+    a = np.asarray(_whiten(jnp.asarray(r), jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(x) for x in ll)))
     b = np.stack([apply_filter(r[:, i], ars[i]) for i in range(3)], 1)
     np.testing.assert_allclose(a, b, atol=1e-10)
 
@@ -138,7 +137,7 @@ def test_random_walk_null_names_nothing():
         assert rep["effects"] == [], [(e["sensor"], e["name"]) for e in rep["effects"]]
 
 
-def test_simulate_batch_equals_one_by_one():
+def test_simulate_batch_equals_one_by_one(x64):
     """The vmapped benchmark simulation gives exactly the recordings of the one-seed function.
 
     Compared in float64, where it is exact: the integer counts are equal and the references agree
@@ -146,21 +145,20 @@ def test_simulate_batch_equals_one_by_one():
     sum rounds differently, flips a count by one LSB and moves the references by 5e-7, the size of
     the old tolerances (1 LSB, 1e-6): a verdict that hung on reduction order.
     """
-    with jax.enable_x64(True):
-        cfg = RichConfig(n=1500)
-        th = np.zeros((2, E.N_THETA["acc"]))
-        th[1, E.slot("acc", "lever_arm").start : 3] = [0.01, -0.02, 0.005]
-        batch = simulate_batch(jax.vmap(jax.random.PRNGKey)(jnp.arange(5, 7)), cfg, {"acc": th}, [{}, {"gyr": 2000.0}])
-        for i, (rec_b, truth_b) in enumerate(batch):
-            eff = {("acc", "lever_arm"): {"r": th[i, :3]}} if i else None
-            rec, truth = simulate_recording(jax.random.PRNGKey(5 + i), cfg, eff, {"gyr": 2000.0} if i else None)
-            assert np.asarray(rec_b["acc_ref"]).dtype == np.float64
-            for k in ("acc", "gyr"):
-                np.testing.assert_array_equal(rec_b[k], rec[k])
-            for k in ("acc_ref", "gyr_ref", "temp"):
-                np.testing.assert_allclose(rec_b[k], rec[k], rtol=0, atol=1e-9)
-            np.testing.assert_allclose(truth_b["theta"]["acc"], truth["theta"]["acc"])
-    assert np.max(np.abs(batch[1][0]["gyr"])) <= 2000.0  # saturated at 2000 LSB (observed: exactly 2000)
+    cfg = RichConfig(n=1500)
+    th = np.zeros((2, E.N_THETA["acc"]))
+    th[1, E.slot("acc", "lever_arm").start : 3] = [0.01, -0.02, 0.005]
+    batch = simulate_batch(jax.vmap(jax.random.PRNGKey)(jnp.arange(5, 7)), cfg, {"acc": th}, [{}, {"gyr": 2000.0}])
+    for i, (rec_b, truth_b) in enumerate(batch):
+        eff = {("acc", "lever_arm"): {"r": th[i, :3]}} if i else None
+        rec, truth = simulate_recording(jax.random.PRNGKey(5 + i), cfg, eff, {"gyr": 2000.0} if i else None)
+        assert np.asarray(rec_b.acc_ref).dtype == np.float64
+        for k in ("acc", "gyr"):
+            np.testing.assert_array_equal(getattr(rec_b, k), getattr(rec, k))
+        for k in ("acc_ref", "gyr_ref", "temp"):
+            np.testing.assert_allclose(getattr(rec_b, k), getattr(rec, k), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(truth_b["theta"]["acc"], truth["theta"]["acc"])
+    assert np.max(np.abs(batch[1][0].gyr)) <= 2000.0  # saturated at 2000 LSB (observed: exactly 2000)
 
 
 def test_reference_from_pose_constant_turn():
@@ -240,7 +238,7 @@ def test_temperature_ramp_warns_confounding():
 
 def test_saturation_named_with_exact_limit():
     rec0, _ = simulate_recording(jax.random.PRNGKey(10), CFG)
-    lim = float(np.floor(np.max(np.abs(rec0["gyr"])) * 0.8))
+    lim = float(np.floor(np.max(np.abs(rec0.gyr)) * 0.8))
     rec, _ = simulate_recording(jax.random.PRNGKey(10), CFG, None, {"gyr": lim})
     rep = diagnose_recording(rec)
     e = _find(rep, "gyr", "saturation")
@@ -252,21 +250,21 @@ def test_cli_diagnose_writes_report_and_rejects_bad_input(tmp_path):
 
     rec, _ = simulate_recording(jax.random.PRNGKey(11), CFG, {("acc", "lever_arm"): {"r": np.array([0.02, 0.0, 0.0])}})
     p = tmp_path / "rec.npz"
-    np.savez(p, **{k: np.asarray(v) for k, v in rec.items()})
+    np.savez(p, **{k: np.asarray(v) for k, v in rec.to_dict().items()})
     out = tmp_path / "diag"
     assert main(["diagnose", str(p), "--out", str(out)]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert [e["name"] for e in rep["effects"]][:1] == ["lever_arm"]
     assert (out / "report.md").read_text().startswith("# jaxcal diagnose report")
     bad = tmp_path / "bad.npz"
-    np.savez(bad, t=rec["t"], acc=rec["acc"])  # no reference motion
+    np.savez(bad, t=rec.t, acc=rec.acc)  # no reference motion
     assert main(["diagnose", str(bad), "--out", str(tmp_path / "x")]) == 2
 
 
 def test_cv_rss_ols_is_leave_one_block_out_least_squares():
     """``fit="ols"``: every block predicted by ordinary least squares on the other blocks (a direct
     lstsq per block, independent of the Gram bookkeeping); ``fit="gls"`` differs under AR noise."""
-    from jaxcal.diagnose.select import build_system, cv_rss, group_columns
+    from jaxcal.diagnose.select import build_system, cv_rss
     from jaxcal.diagnose.whiten import ARModel
 
     rng = np.random.default_rng(3)

@@ -39,24 +39,23 @@ def _eiv_case(seed, n=2000, dt=0.02, tau=0.008, sd_y=0.01):
     return inp, y, rows, np.minimum(np.arange(n) * 8 // n, 7)
 
 
-def test_refit_time_offset_consistent_under_reference_noise():
+def test_refit_time_offset_consistent_under_reference_noise(x64):
     """The linearised (one-step) estimate is attenuated by the reference noise; the converged refit
     is not, and its reported 95 % interval covers the truth in about 95 % of seeds."""
     tau, hits, lin, est = 0.008, 0, [], []
     seeds = range(12)
-    with jax.enable_x64(True):
-        for seed in seeds:
-            inp, y, rows, block = _eiv_case(seed, tau=tau)
-            xd = -np.asarray(jax.jacfwd(lambda a: E.shift_signal(jnp.asarray(inp.w), a, 0.02))(0.0))
-            z = y - inp.w
-            a = np.stack([xd[rows].ravel(), np.ones(3 * rows.sum())], 1)
-            lin.append(np.linalg.lstsq(a, z[rows].ravel(), rcond=None)[0][0])
-            ars = [WHITE._replace(sigma=float(np.std(z[rows, i] - xd[rows, i] * tau))) for i in range(3)]
-            r = refit("diag", "gyr", E.identity_beta("diag"), np.zeros(E.N_THETA["gyr"]), ["time_offset"], inp, y, rows, ars, block)
-            k = E.slot("gyr", "time_offset").start
-            est.append(r.theta[k])
-            hits += abs(r.theta[k] - tau) <= 1.96 * r.se_theta[k]
-            assert r.se_block_theta[k] > 0
+    for seed in seeds:
+        inp, y, rows, block = _eiv_case(seed, tau=tau)
+        xd = -np.asarray(jax.jacfwd(lambda a: E.shift_signal(jnp.asarray(inp.w), a, 0.02))(0.0))
+        z = y - inp.w
+        a = np.stack([xd[rows].ravel(), np.ones(3 * rows.sum())], 1)
+        lin.append(np.linalg.lstsq(a, z[rows].ravel(), rcond=None)[0][0])
+        ars = [WHITE._replace(sigma=float(np.std(z[rows, i] - xd[rows, i] * tau))) for i in range(3)]
+        r = refit("diag", "gyr", E.identity_beta("diag"), np.zeros(E.N_THETA["gyr"]), ["time_offset"], inp, y, rows, ars, block)
+        k = E.slot("gyr", "time_offset").start
+        est.append(r.theta[k])
+        hits += abs(r.theta[k] - tau) <= 1.96 * r.se_theta[k]
+        assert r.se_block_theta[k] > 0
     assert np.mean(lin) < 0.8 * tau  # the regression dilution this test is about is present
     assert abs(np.mean(est) - tau) < 0.05 * tau, (np.mean(est), tau)
     assert hits >= 9, hits  # 12 seeds, nominal 95 %: P(hits <= 8) < 0.2 %
@@ -111,14 +110,15 @@ def test_tumvi_concealed_lever_arm_recovered():
     tumvi = Path(__file__).resolve().parent.parent / "data" / "tumvi_room1_512_16" / "room1.npz"
     if not tumvi.exists():
         pytest.skip("TUM-VI sample not present")
-    rec = load_recording(tumvi).to_dict()  # as the command line reads it
+    rec = load_recording(tumvi)  # as the command line reads it
 
     def estimate(rep):
         e = [e for e in rep["effects"] if e["sensor"] == "acc" and e["name"] == "lever_arm"]
         return (np.asarray(e[0]["params"]["r"]), np.asarray(e[0]["stderr"]["r"])) if e else (None, None)
 
     r = np.array([0.04, -0.03, 0.06])
-    rep0, rep1 = diagnose_recording(rec), diagnose_recording(conceal_lever_arm(rec, r))
+    rep0 = diagnose_recording(rec)
+    rep1 = diagnose_recording(conceal_lever_arm(rec, r))
     est, se = estimate(rep1)
     est0, se0 = estimate(rep0)
     assert est is not None

@@ -16,18 +16,20 @@ from __future__ import annotations
 import json
 import tempfile
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from jaxcal import model_io
+from jaxcal import methods
 from jaxcal.cli import main
-from jaxcal.model_io import Fitted
+from jaxcal.methods.base import Fitted, Method, apply_linear_state
 from jaxcal.recording import load_recording
+from jaxcal.sensor import Affine
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 FS = 100.0
@@ -113,13 +115,17 @@ def base(tmp_path_factory) -> Path:
     return d
 
 
+class _NoOptions(NamedTuple):
+    """The toy method takes no options."""
+
+
 @pytest.fixture
 def toy_method(monkeypatch):
     """A registered method that fits instantly (no JIT), for output-safety tests of ``calibrate``."""
-    def fit(rec, options):
-        return Fitted(("acc",), {"acc": {"S": ACC_LSB * np.eye(3), "b": np.zeros(3)}}, {})
+    def fit(rec, options, log):
+        return Fitted(("acc",), {"acc": Affine(ACC_LSB * np.eye(3), np.zeros(3))}, {})
 
-    monkeypatch.setitem(model_io._REGISTRY, "toy", model_io.MethodSpec("toy", fit, model_io._apply_affine_state, False, ""))
+    monkeypatch.setitem(methods.REGISTRY, "toy", Method("toy", fit, apply_linear_state, _NoOptions, "instant toy"))
     return "toy"
 
 
@@ -366,7 +372,7 @@ def test_simulate_failing_midway_leaves_no_folder(tmp_path, capsys, monkeypatch)
             raise RecordingError(f"{path}: cannot write (disk full)")
         Path(path).write_text("partial")
 
-    monkeypatch.setattr(cli, "_dataset2_recordings", recs)
+    monkeypatch.setattr(cli, "dataset2_recordings", recs)
     monkeypatch.setattr(cli, "save_recording", save)
     refused(capsys, ["simulate", "dataset2", "--out", tmp_path / "sim" / "deep"],
             absent=(tmp_path / "sim",), needles=("disk full",))

@@ -19,9 +19,11 @@ from jaxcal.recording import (
 
 
 def full_recording(n: int = 12, seed: int = 0) -> Recording:
-    """A recording with every conventions key set, plus extras of several shapes."""
+    """A recording with every field set, plus extras of several shapes."""
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(n, 4))
+    m = 7  # samples of the original pose track
+    qg = rng.normal(size=(m, 4))
     return Recording(
         t=np.cumsum(rng.uniform(0.005, 0.015, n)),
         acc=np.round(rng.normal(0, 8000, (n, 3))).astype(np.int32),
@@ -38,7 +40,15 @@ def full_recording(n: int = 12, seed: int = 0) -> Recording:
         acc_bias_lsb=np.asarray([1.0, -2.0, 3.5]),
         gyr_lsb_per_rads=np.asarray([7505.7, 7500.0, 7510.0]),
         gyr_bias_lsb=np.asarray(0.0),
-        extra={"mag": rng.normal(size=(n, 3)), "pressure": rng.normal(size=n), "device": np.asarray("mpu6050")},
+        mag=rng.normal(0, 40, (n, 3)),
+        ref_valid=rng.uniform(size=n) < 0.8,
+        section=rng.integers(-1, 3, n),
+        section_names=np.array(["x_p", "x_n", "y_p"]),
+        gt_t=np.sort(rng.uniform(-0.1, 0.2, m)),
+        gt_pos=rng.normal(size=(m, 3)),
+        gt_quat=qg / np.linalg.norm(qg, axis=1, keepdims=True),
+        t0=1.7e9 + 0.123456,
+        extra={"wind": rng.normal(size=(n, 3)), "pressure": rng.normal(size=n), "device": np.asarray("mpu6050")},
     )
 
 
@@ -65,7 +75,9 @@ def test_round_trip_is_exact(tmp_path, first, second):
     assert_same(rec, r2)
     assert r2.acc_unit == "LSB" and r2.gyr_unit == "LSB" and r2.fs == 100.0
     assert r2.seq.dtype.kind == "i" and r2.static.dtype == np.bool_
-    assert r2.extra["mag"].shape == (rec.n, 3) and str(r2.extra["device"]) == "mpu6050"
+    assert r2.ref_valid.dtype == np.bool_ and r2.section.dtype.kind == "i" and list(r2.section_names) == ["x_p", "x_n", "y_p"]
+    assert r2.gt_pos.shape == (7, 3) and r2.gt_quat.shape == (7, 4) and r2.t0 == rec.t0
+    assert r2.extra["wind"].shape == (rec.n, 3) and str(r2.extra["device"]) == "mpu6050"
 
 
 def test_csv_layout_follows_conventions(tmp_path):
@@ -73,9 +85,11 @@ def test_csv_layout_follows_conventions(tmp_path):
     save_recording(rec, tmp_path / "r.csv")
     header = (tmp_path / "r.csv").read_text().splitlines()[0].split(",")
     assert header[:7] == ["t", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"]
-    assert header[-8:] == ["quat_ref_w", "quat_ref_x", "quat_ref_y", "quat_ref_z", "mag_x", "mag_y", "mag_z", "pressure"]
+    assert header[-13:] == ["quat_ref_w", "quat_ref_x", "quat_ref_y", "quat_ref_z", "mag_x", "mag_y", "mag_z",
+                            "ref_valid", "section", "wind_x", "wind_y", "wind_z", "pressure"]
     meta = json.loads((tmp_path / "r.json").read_text())
     assert meta["fs"] == 100.0 and meta["acc_bias_lsb"] == [1.0, -2.0, 3.5]
+    assert meta["section_names"] == ["x_p", "x_n", "y_p"] and len(meta["gt_t"]) == 7 and meta["t0"] == rec.t0
 
 
 def test_minimal_csv_without_sidecar_and_physical_units(tmp_path):
@@ -172,6 +186,33 @@ def test_valid_inputs_pass_and_validation_is_strict():
         validate_recording(rec.replace(t=np.array([1.0, 0.0])))
     with pytest.raises(RecordingError, match="neither"):
         validate_recording(rec.replace(gyr=None))
+
+
+@pytest.mark.parametrize("change,needle", [
+    ({"ref_valid": np.array([0, 2, 1, 1])}, "key 'ref_valid' row 1: expected a boolean"),
+    ({"section": np.array([0.0, 0.5, 1, 1])}, "key 'section' row 1: section label 0.5 is not an integer"),
+    ({"section": np.array([0, 1, 3, -1])}, "key 'section' row 2: label 3 names none of the 2 'section_names'"),
+    ({"section_names": np.array([1.0, 2.0])}, "key 'section_names': expected a list of strings"),
+    ({"mag": np.ones((3, 3))}, "key 'mag': length 3 does not match len"),
+    ({"gt_t": np.array([0.0, 0.2, 0.1])}, "key 'gt_t' row 2: times not strictly increasing"),
+    ({"gt_pos": np.zeros((2, 3))}, r"key 'gt_pos': expected shape \(M, 3\) with M = len\(gt_t\) = 3"),
+    ({"gt_quat": np.full((3, 4), np.nan)}, "key 'gt_quat' row 0: non-finite"),
+    ({"t0": np.inf}, "key 't0': must be finite"),
+    ({"extra": {"mag": np.zeros((4, 3))}}, "key 'mag' is a field of Recording"),
+])
+def test_optional_fields_are_validated(change, needle):
+    """The readers' optional keys (mag, ref_valid, section/section_names, the pose track gt_*, t0)
+    are fields with their own checks; an extra may not shadow a field."""
+    ok = recording_from_dict({"t": np.arange(4) * 0.01, "gyr": np.zeros((4, 3)), "gyr_unit": "rad/s",
+                              "mag": np.ones((4, 3)), "ref_valid": np.array([True, False, True, True]),
+                              "section": np.array([0, 1, 1, -1]), "section_names": np.array(["a", "b"]),
+                              "gt_t": np.array([0.0, 0.1, 0.2]), "gt_pos": np.zeros((3, 3)),
+                              "gt_quat": np.tile([1.0, 0, 0, 0], (3, 1)), "t0": 1.7e9, "meta_x": 2.0})
+    assert ok.t0 == 1.7e9 and ok.ref_valid.dtype == bool and set(ok.extra) == {"meta_x"}
+    with pytest.raises(RecordingError, match=needle):
+        validate_recording(ok.replace(**change))
+    with pytest.raises(RecordingError, match="key 't0': expected a scalar time in s"):
+        recording_from_dict({"t": [0.0, 1.0], "gyr": np.zeros((2, 3)), "t0": [1.0, 2.0]})
 
 
 def test_nan_rows_in_reference_keys_are_gaps():

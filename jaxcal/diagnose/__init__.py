@@ -17,22 +17,20 @@ Pipeline (one sensor at a time, CONVENTIONS.md "Discrepancy vocabulary"):
 from __future__ import annotations
 
 import time
-from typing import Any, Mapping
-
-import jax
+from collections.abc import Mapping
 
 from jaxcal.diagnose.core import diagnose_banded, diagnose_prepared, prepare
-from jaxcal.diagnose.select import SelectConfig
 from jaxcal.diagnose.report import build_report_banded, figures_banded, report_markdown, write_report
+from jaxcal.diagnose.select import SelectConfig
+from jaxcal.recording import Recording
 
 __all__ = ["diagnose_recording", "diagnose_banded", "diagnose_prepared", "SelectConfig", "prepare", "report_markdown", "write_report"]
 
 
 def diagnose_recording(
-    rec: Any,
+    rec: Recording,
     baseline: str = "diag",
     out_dir=None,
-    key: jax.Array | None = None,
     config: SelectConfig = SelectConfig(),
     pose_sigma: float | None = None,
     with_figures: bool | None = None,
@@ -41,13 +39,12 @@ def diagnose_recording(
     """Diagnose a recording against the baseline sensor model; returns the ``report.json`` dict.
 
     Args:
-        rec: :class:`jaxcal.recording.Recording` or a dict of arrays with CONVENTIONS.md keys:
-            ``t``, ``acc``/``gyr`` (LSB with spec metadata, or g / rad/s with ``*_unit``), and the
-            reference motion (``acc_ref``/``gyr_ref``, or ``pos_ref`` + ``quat_ref``), optional
-            ``temp``.
+        rec: :class:`jaxcal.recording.Recording` (build one from arrays with
+            :func:`jaxcal.recording.recording_from_dict`): ``t``, ``acc``/``gyr`` (LSB with spec
+            metadata, or g / rad/s with ``*_unit``), and the reference motion (``acc_ref``/``gyr_ref``,
+            or ``pos_ref`` + ``quat_ref``), optional ``temp``.
         baseline: ``"diag"`` (default, thesis eq. 4.6) or ``"affine"`` (eq. 2.3).
         out_dir: if given, ``report.json``, ``report.md`` and the figures are written there.
-        key: unused (the diagnosis is deterministic); accepted for API symmetry.
         config: test level, power for detectable sizes, coarse time-offset range, ...
         pose_sigma: smoothing (s) when the reference is derived from a pose; None (default): each
             sensor's from where the reference keeps its gain against it (:mod:`jaxcal.diagnose.band`).
@@ -57,9 +54,9 @@ def diagnose_recording(
             "time_offset")}``; :func:`jaxcal.diagnose.align.align_recording` uses it).
 
     Raises:
+        TypeError: ``rec`` is not a :class:`~jaxcal.recording.Recording`.
         ValueError: bad input (no reference motion, unknown baseline, too few samples).
     """
-    del key
     if baseline not in ("diag", "affine"):
         raise ValueError(f"unknown baseline {baseline!r} (expected diag or affine)")
     t0 = time.perf_counter()

@@ -24,16 +24,17 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import kinematics as K
-from jaxcal.diagnose.core import _get, diagnose_banded
+from jaxcal.diagnose.core import diagnose_banded, require_recording
 from jaxcal.diagnose.report import build_report_banded
 from jaxcal.diagnose.select import SelectConfig
+from jaxcal.recording import Recording
 
 __all__ = ["AlignResult", "align_recording", "groundtruth_table", "write_alignment", "EUROC_GT_COLUMNS"]
 
@@ -80,14 +81,14 @@ def _combine_tau(rep: dict) -> tuple[float, float, dict]:
     return tau, se, per
 
 
-def _track(rec: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _track(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The reference pose track at its own times (the reader's ``gt_*`` when kept), NaN rows dropped."""
-    t = _get(rec, "gt_t")
+    t = rec.gt_t
     if t is not None:
-        tt, p, q = np.asarray(t, float), np.asarray(_get(rec, "gt_pos"), float), np.asarray(_get(rec, "gt_quat"), float)
+        tt, p, q = np.asarray(t, float), np.asarray(rec.gt_pos, float), np.asarray(rec.gt_quat, float)
     else:
-        tt, p, q = np.asarray(_get(rec, "t"), float), np.asarray(_get(rec, "pos_ref"), float), np.asarray(_get(rec, "quat_ref"), float)
-        rv = _get(rec, "ref_valid")
+        tt, p, q = np.asarray(rec.t, float), np.asarray(rec.pos_ref, float), np.asarray(rec.quat_ref, float)
+        rv = rec.ref_valid
         if rv is not None:
             p = np.where(np.asarray(rv, bool)[:, None], p, np.nan)
     ok = np.isfinite(p).all(1) & np.isfinite(q).all(1)
@@ -137,11 +138,12 @@ def groundtruth_table(t_imu: np.ndarray, track: tuple[np.ndarray, np.ndarray, np
     return np.column_stack([ts[ok], p_imu[ok], q_imu[ok], v[ok], np.tile(b_gyr, (n, 1)), np.tile(b_acc_ms2, (n, 1))])
 
 
-def align_recording(rec: Any, pose_sigma: float | None = None, config: SelectConfig = SelectConfig()) -> AlignResult:
+def align_recording(rec: Recording, pose_sigma: float | None = None, config: SelectConfig = SelectConfig()) -> AlignResult:
     """Estimate the rig's time offset, rotation and lever arm, and the IMU ground truth.
 
     Args:
-        rec: recording with ``acc`` and/or ``gyr`` and a reference pose (``pos_ref``, ``quat_ref``).
+        rec: :class:`~jaxcal.recording.Recording` with ``gyr`` (and ``acc``) and a reference pose
+            (``pos_ref``, ``quat_ref``; the original track ``gt_*`` and ``t0`` used when given).
         pose_sigma: Gaussian width (s) of the pose derivatives; None (default) chooses it from the
             coherence of sensor and reference (:mod:`jaxcal.diagnose.band`).
         config: the tests' settings (as in ``diagnose``).
@@ -149,9 +151,10 @@ def align_recording(rec: Any, pose_sigma: float | None = None, config: SelectCon
     Raises:
         ValueError: no reference pose, no gyroscope, or no usable reference.
     """
-    if _get(rec, "pos_ref") is None or _get(rec, "quat_ref") is None:
+    require_recording(rec)
+    if rec.pos_ref is None or rec.quat_ref is None:
         raise ValueError("align needs a reference pose (pos_ref and quat_ref)")
-    if _get(rec, "gyr") is None:
+    if rec.gyr is None:
         raise ValueError("align needs the gyroscope (the rotation comes from it)")
     t_start = time.perf_counter()
     preps, results = diagnose_banded(rec, "affine", config, FORCE, pose_sigma)
@@ -183,12 +186,12 @@ def align_recording(rec: Any, pose_sigma: float | None = None, config: SelectCon
     out["warnings"] = rep["warnings"]
     out["notes"] = rep["notes"]
     r = np.zeros(3) if out["r"] is None else np.asarray(out["r"])
-    t0 = float(_get(rec, "t0") or 0.0)
+    t0 = float(rec.t0 or 0.0)
     # velocity: the position's derivative with a kernel of two track intervals (a wider one would
     # attenuate the velocity itself: 18 % at 1 Hz for 100 ms)
     track = _track(rec)
-    v_sigma = 2.0 * max(float(np.median(np.diff(track[0]))), float(np.median(np.diff(np.asarray(_get(rec, "t"), float)))))
-    gt = groundtruth_table(np.asarray(_get(rec, "t"), float), track, tau, R, r, b_gyr, b_acc, t0=t0, sigma=v_sigma)
+    v_sigma = 2.0 * max(float(np.median(np.diff(track[0]))), float(np.median(np.diff(np.asarray(rec.t, float)))))
+    gt = groundtruth_table(np.asarray(rec.t, float), track, tau, R, r, b_gyr, b_acc, t0=t0, sigma=v_sigma)
     out["groundtruth_rows"] = int(len(gt))
     out["runtime_s"] = time.perf_counter() - t_start
     return AlignResult(out, rep, gt, results, {k: p.t for k, p in preps.items()})
@@ -224,7 +227,13 @@ def alignment_figure(res: AlignResult):
 
 def write_alignment(out_dir: str | os.PathLike, res: AlignResult, figure: bool = True) -> None:
     """Write ``align.json``, ``groundtruth.csv`` (EuRoC columns), ``report.json``/``report.md`` of the
-    diagnosis behind it and ``align_residuals.png``."""
+    diagnosis behind it and ``align_residuals.png``.
+
+    Args:
+        out_dir: output directory (created if missing).
+        res: the result of :func:`align_recording`.
+        figure: also write ``align_residuals.png``.
+    """
     from jaxcal.diagnose.report import write_report
 
     d = Path(out_dir)

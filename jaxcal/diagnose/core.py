@@ -1,6 +1,6 @@
 """The diagnosis pipeline: prepare a recording, then per sensor locate -> name -> refit.
 
-:func:`prepare` turns a recording (dict of arrays or :class:`jaxcal.recording.Recording`) into
+:func:`prepare` turns a :class:`jaxcal.recording.Recording` into
 :class:`~jaxcal.diagnose.select.SensorData` per sensor: physical outputs via the datasheet
 values, the reference motion (given, or derived from a pose with smoothing and decimation), the
 temperature, validity, and contiguous time blocks for cross-validation.
@@ -10,15 +10,16 @@ noise-model + forward selection, detectability and confounding analysis, and the
 
 from __future__ import annotations
 
-from typing import Any, Mapping, NamedTuple
+from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 from scipy import stats
 
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose import kinematics as K
 from jaxcal.diagnose.band import HALF_POWER as BH
 from jaxcal.diagnose.band import Band, choose_sigma
-from jaxcal.diagnose import kinematics as K
 from jaxcal.diagnose.locate import breakdown
 from jaxcal.diagnose.refit import RefitResult, refit
 from jaxcal.diagnose.select import (
@@ -27,14 +28,13 @@ from jaxcal.diagnose.select import (
     SensorData,
     attenuation,
     block_score_inflation,
-    cross_gram,
     build_system,
     candidates,
     canonical_correlation,
     coarse_lag,
     critical_value,
+    cross_gram,
     detectable_noncentrality,
-    fit_baseline,
     forward_select,
     group_columns,
     heldout_rms_path,
@@ -47,6 +47,22 @@ from jaxcal.diagnose.select import (
     saturation_stat,
 )
 from jaxcal.diagnose.whiten import apply_filter, choose_lambda, fill_index, fit_ar, gap_ok, reml_profile
+from jaxcal.recording import Recording
+
+__all__ = [
+    "EXCITE",
+    "Prepared",
+    "require_recording",
+    "split_blocks",
+    "prepare",
+    "measured_inputs",
+    "SensorResult",
+    "UNIT_OF",
+    "FORCED",
+    "diagnose_sensor",
+    "diagnose_prepared",
+    "diagnose_banded",
+]
 
 # Motion/conditions that excite each effect (used in warnings).
 EXCITE = {
@@ -75,22 +91,27 @@ class Prepared(NamedTuple):
     sigma_by_sensor: dict | None = None  # each sensor's kernel width (s), pose-derived reference
 
 
-def _get(rec: Any, k: str):
-    if isinstance(rec, Mapping):
-        v = rec.get(k)
-    else:
-        v = getattr(rec, k, None)
-        if v is None and hasattr(rec, "extra"):
-            v = rec.extra.get(k)
-    return v
+def require_recording(rec: Recording) -> None:
+    """Refuse anything but a :class:`~jaxcal.recording.Recording` (e.g. a plain dict of arrays):
+    ``prepare`` and ``align_recording`` read its fields by name.
+
+    Raises:
+        TypeError: ``rec`` is not a :class:`~jaxcal.recording.Recording`.
+    """
+    if not isinstance(rec, Recording):
+        raise TypeError(f"diagnose takes a jaxcal.recording.Recording, got {type(rec).__name__} "
+                        "(build one with jaxcal.recording.recording_from_dict)")
 
 
-def _spec(rec, sensor: str, y: np.ndarray, x: np.ndarray, rows: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    unit = str(_get(rec, f"{sensor}_unit") or "LSB")
-    if unit != "LSB":
+def _unit(rec: Recording, sensor: str) -> str:
+    """``"LSB"`` or the physical unit of ``sensor``'s output in ``rec``."""
+    return rec.acc_unit if sensor == "acc" else rec.gyr_unit
+
+
+def _spec(rec: Recording, sensor: str, y: np.ndarray, x: np.ndarray, rows: np.ndarray, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    if _unit(rec, sensor) != "LSB":
         return np.ones(3), np.zeros(3)
-    sk, bk = ("acc_lsb_per_g", "acc_bias_lsb") if sensor == "acc" else ("gyr_lsb_per_rads", "gyr_bias_lsb")
-    s, b = _get(rec, sk), _get(rec, bk)
+    s, b = (rec.acc_lsb_per_g, rec.acc_bias_lsb) if sensor == "acc" else (rec.gyr_lsb_per_rads, rec.gyr_bias_lsb)
     if s is not None:
         return np.broadcast_to(np.asarray(s, float), (3,)).copy(), np.broadcast_to(np.asarray(b if b is not None else 0.0, float), (3,)).copy()
     sc, bi = np.zeros(3), np.zeros(3)
@@ -101,18 +122,18 @@ def _spec(rec, sensor: str, y: np.ndarray, x: np.ndarray, rows: np.ndarray, note
     return sc, bi
 
 
-def _reference_ok(rec: Any, t: np.ndarray, notes: list[str]) -> np.ndarray:
+def _reference_ok(rec: Recording, t: np.ndarray, notes: list[str]) -> np.ndarray:
     """(N,) bool: where the recording's reference may be used. A reader's ``ref_valid`` marking
     is honoured, and when the original pose track's times ``gt_t`` are kept, samples interpolated
     across a missing track sample are dropped too (:func:`jaxcal.diagnose.kinematics.reference_gap_mask`)."""
     ok = np.ones(len(t), bool)
-    rv = _get(rec, "ref_valid")
+    rv = rec.ref_valid
     if rv is not None:
         rv = np.asarray(rv).astype(bool).reshape(-1)
         if rv.shape != ok.shape:
             raise ValueError(f"'ref_valid' has {rv.size} values for {len(t)} samples")
         ok &= rv
-    gt_t = _get(rec, "gt_t")
+    gt_t = rec.gt_t
     if gt_t is not None and np.ndim(gt_t) == 1 and len(gt_t) >= 2:
         ok &= K.reference_gap_mask(t, gt_t)
     if not ok.all():
@@ -122,11 +143,16 @@ def _reference_ok(rec: Any, t: np.ndarray, notes: list[str]) -> np.ndarray:
 
 
 def split_blocks(n: int, n_blocks: int = 8) -> np.ndarray:
-    """Block id (N,) of ``n_blocks`` contiguous equal time blocks (cross-validation folds)."""
+    """Block id (N,) of ``n_blocks`` contiguous equal time blocks (cross-validation folds).
+
+    Args:
+        n: number of samples.
+        n_blocks: number of blocks (cross-validation folds).
+    """
     return np.minimum((np.arange(n) * n_blocks) // n, n_blocks - 1)
 
 
-def _choose_band(t, dt, pos, quat, raw, get, rec) -> Band:
+def _choose_band(t, dt, pos, quat, raw, rec: Recording) -> Band:
     """The smoothing of a pose-derived reference from the coherence of sensor and reference
     (:func:`jaxcal.diagnose.band.choose_sigma`), measured against a reference derived with a
     kernel of about one sample (nearly unsmoothed) in the spec's physical units."""
@@ -137,7 +163,7 @@ def _choose_band(t, dt, pos, quat, raw, get, rec) -> Band:
         if raw[s] is None:
             continue
         y = raw[s]
-        if str(get(rec, f"{s}_unit") or "LSB") == "LSB":
+        if _unit(rec, s) == "LSB":
             sc, bi = _spec(rec, s, y, ref0[key], valid, [])
             y = (y - bi) / sc
         pairs[s] = (y, ref0[key])
@@ -153,7 +179,7 @@ def _choose_band(t, dt, pos, quat, raw, get, rec) -> Band:
     return choose_sigma(pairs, valid, dt, lag_s=lag * dt)
 
 
-def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float = 0.0, n_blocks: int = 8,
+def prepare(rec: Recording, pose_sigma: float | None = 0.02, ref_sigma_samples: float = 0.0, n_blocks: int = 8,
             band: Band | None = None) -> Prepared:
     """Build per-sensor :class:`SensorData` from a recording (see module docstring).
 
@@ -164,17 +190,26 @@ def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float 
     ``pose_sigma=None`` chooses the width from the coherence of sensor and reference
     (:mod:`jaxcal.diagnose.band`: the band where the reference is trustworthy); ``band``: an already
     chosen :class:`~jaxcal.diagnose.band.Band` to report beside a fixed ``pose_sigma``.
+
+    Args:
+        rec: the recording (physical units, or LSB with datasheet values).
+        pose_sigma: Gaussian width (s) of a pose-derived reference; None chooses it by coherence.
+        ref_sigma_samples: with ``gyr_ref`` given, Gaussian width (samples) of its derivative;
+            0 uses the five-point difference.
+        n_blocks: contiguous time blocks for cross-validation.
+        band: an already chosen :class:`~jaxcal.diagnose.band.Band`, reported beside a fixed ``pose_sigma``.
     """
+    require_recording(rec)
     notes: list[str] = []
-    t = np.asarray(_get(rec, "t"), np.float64)
+    t = np.asarray(rec.t, np.float64)
     if t.ndim != 1 or len(t) < 100:
         raise ValueError("diagnose needs a 't' array of at least 100 samples")
     dt = float(np.median(np.diff(t)))
-    acc = _get(rec, "acc")
-    gyr = _get(rec, "gyr")
-    temp = _get(rec, "temp")
-    acc_ref, gyr_ref = _get(rec, "acc_ref"), _get(rec, "gyr_ref")
-    pos, quat = _get(rec, "pos_ref"), _get(rec, "quat_ref")
+    acc = rec.acc
+    gyr = rec.gyr
+    temp = rec.temp
+    acc_ref, gyr_ref = rec.acc_ref, rec.gyr_ref
+    pos, quat = rec.pos_ref, rec.quat_ref
     raw = {"acc": None if acc is None else np.asarray(acc, np.float64), "gyr": None if gyr is None else np.asarray(gyr, np.float64)}
     ref_ok = _reference_ok(rec, t, notes)
     if pos is not None and quat is not None:
@@ -184,7 +219,7 @@ def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float 
     per_sensor: dict = {}  # pose-derived reference per sensor (its own kernel width): (f, w, wdot)
     if gyr_ref is None and pos is not None and quat is not None:
         if pose_sigma is None:
-            band = _choose_band(t, dt, pos, quat, raw, _get, rec)
+            band = _choose_band(t, dt, pos, quat, raw, rec)
             pose_sigma = band.sigma_s
             sig = dict(band.sigma_by_sensor)
         else:
@@ -257,7 +292,7 @@ def prepare(rec: Any, pose_sigma: float | None = 0.02, ref_sigma_samples: float 
             f = (raw["acc"] - bia) / sca
         sc, bi = _spec(rec, s, raw[s], x, valid, notes)
         y = (raw[s] - bi) / sc
-        is_counts = (not smoothed) and str(_get(rec, f"{s}_unit") or "LSB") == "LSB"
+        is_counts = (not smoothed) and _unit(rec, s) == "LSB"
         inp = E.Inputs(f, w, wdot, tc, dT, np.asarray(dt), ww)
         out[s] = SensorData(s, y, raw[s] if is_counts else None, sc, bi, inp, valid.copy(), block, temp is not None)
     return Prepared(out, t, temp, dt, notes, smoothed, band, pose_sigma if smoothed else None,
@@ -268,7 +303,12 @@ def measured_inputs(prep: Prepared, s: str) -> E.Inputs | None:
     """The reference inputs of sensor ``s`` with the motion replaced by the sensors' own outputs
     (acc for ``f``, gyro for ``w`` and, differentiated, ``wdot``); for the errors-in-variables
     attenuation of pose-derived references (:func:`jaxcal.diagnose.select.attenuation`). None when
-    the reference is not pose-derived or a sensor is missing."""
+    the reference is not pose-derived or a sensor is missing.
+
+    Args:
+        prep: a prepared recording.
+        s: the sensor, ``"acc"`` or ``"gyr"``.
+    """
     if not prep.from_pose or "acc" not in prep.sensors or "gyr" not in prep.sensors:
         return None
     inp = prep.sensors[s].inp
@@ -372,11 +412,21 @@ def _refine_tau(kind: str, sd: SensorData, tau_c: float, ars, rows: np.ndarray, 
 def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, _relin: tuple | None = None,
                     meas: E.Inputs | None = None, force: tuple[str, ...] = (), lag_hint: int | None = None,
                     _no_offset: bool = False) -> SensorResult:
-    """Locate-name-refit for one sensor; ``n_tests`` is the Bonferroni count of the recording.
+    """Locate-name-refit for one sensor.
 
-    ``force``: effects estimated whatever the tests say (``jaxcal align`` estimates the time offset
-    and lever arm of every rig); they are reported as estimates, not as discoveries. ``lag_hint``:
-    the coarse lag (samples) another sensor on the same clock found; taken as this sensor's candidate.
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sd: the sensor's prepared data (:func:`prepare`).
+        cfg: test level and search settings.
+        n_tests: Bonferroni count of the recording (candidates of all its sensors).
+        _relin: internal: ``(tau, decision)`` of the relinearised pass (below).
+        meas: reference inputs from the sensors' own outputs (:func:`measured_inputs`), for the
+            attenuation of a pose-derived reference; None: no correction.
+        force: effects estimated whatever the tests say (``jaxcal align`` estimates the time offset
+            and lever arm of every rig); reported as estimates, not as discoveries.
+        lag_hint: the coarse lag (samples) another sensor on the same clock found; taken as this
+            sensor's candidate.
+        _no_offset: internal: drop the time offset from the candidates.
 
     The promise of the report, enforced here: every named effect lowers the physical held-out rms
     that the report prints (an effect that does not is demoted to ``rejected`` with a warning that
@@ -622,7 +672,14 @@ def diagnose_prepared(prep: Prepared, kind: str, cfg: SelectConfig = SelectConfi
                       force: Mapping[str, tuple[str, ...]] | None = None) -> dict[str, SensorResult]:
     """:func:`diagnose_sensor` for every sensor of a :class:`Prepared` recording (one Bonferroni
     family over all of them); ``force`` per sensor as in :func:`diagnose_sensor`. The gyroscope
-    runs first and its coarse clock offset guides the accelerometer's search."""
+    runs first and its coarse clock offset guides the accelerometer's search.
+
+    Args:
+        prep: a prepared recording (:func:`prepare`).
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        cfg: test level and search settings.
+        force: ``{sensor: effect names}`` estimated whatever the tests say; None: none.
+    """
     n_tests = sum(len(candidates(kind, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
     force = dict(force or {})
     out: dict[str, SensorResult] = {}
@@ -635,7 +692,7 @@ def diagnose_prepared(prep: Prepared, kind: str, cfg: SelectConfig = SelectConfi
     return {s: out[s] for s in prep.sensors}
 
 
-def diagnose_banded(rec: Any, kind: str, cfg: SelectConfig = SelectConfig(), force: Mapping[str, tuple[str, ...]] | None = None,
+def diagnose_banded(rec: Recording, kind: str, cfg: SelectConfig = SelectConfig(), force: Mapping[str, tuple[str, ...]] | None = None,
                     pose_sigma: float | None = None) -> tuple[dict[str, Prepared], dict[str, SensorResult]]:
     """Prepare and diagnose a recording, each sensor in its own trusted band.
 
@@ -645,6 +702,13 @@ def diagnose_banded(rec: Any, kind: str, cfg: SelectConfig = SelectConfig(), for
     decimation and diagnosed there, the gyroscope first (its clock offset guides the
     accelerometer's search). Returns ``({sensor: Prepared},
     {sensor: SensorResult})``; one shared :class:`Prepared` when a single kernel serves both.
+
+    Args:
+        rec: the recording.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        cfg: test level and search settings.
+        force: ``{sensor: effect names}`` estimated whatever the tests say; None: none.
+        pose_sigma: Gaussian width (s) of a pose-derived reference; None chooses it per sensor.
     """
     prep = prepare(rec, pose_sigma=pose_sigma)
     if not prep.sensors:

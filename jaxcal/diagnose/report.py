@@ -10,11 +10,51 @@ from pathlib import Path
 import numpy as np
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.core import FORCED, UNIT_OF as UNIT, Prepared, SensorResult
 from jaxcal.diagnose.band import HALF_POWER
+from jaxcal.diagnose.core import FORCED, Prepared, SensorResult
+from jaxcal.diagnose.core import UNIT_OF as UNIT
 from jaxcal.diagnose.frames import lever_arm_frames, rotation_split
 from jaxcal.diagnose.locate import allan_deviation, breakdown, whiteness
 
+__all__ = [
+    "named_effects",
+    "effect_estimate",
+    "build_report",
+    "build_report_banded",
+    "figures_banded",
+    "frames_report",
+    "promise_violations",
+    "report_markdown",
+    "figures",
+    "write_report",
+]
+
+
+def named_effects(rep: dict) -> set[tuple[str, str]]:
+    """The ``(sensor, effect)`` pairs a report names."""
+    return {(e["sensor"], e["name"]) for e in rep["effects"]}
+
+
+def effect_estimate(rep: dict, sensor: str, name: str):
+    """A named effect's flat estimate and standard errors (misalignment: its 6 off-diagonal entries;
+    saturation: the limit) and its report entry, or ``(None, None, None)`` if not named.
+
+    Args:
+        rep: a ``report.json`` dict.
+        sensor: ``"acc"`` or ``"gyr"``.
+        name: effect name.
+    """
+    for e in rep["effects"]:
+        if e["sensor"] == sensor and e["name"] == name:
+            if name == "saturation":
+                return np.array([e["params"]["limit"]]), np.array([e["stderr"]["limit"]]), e
+            sl = E.slot(sensor, name)
+            p, s = e["params"][sl.param], e["stderr"][sl.param]
+            if name == "misalignment":
+                p = [np.asarray(p)[i, j] for i, j in E.OFFDIAG]
+                s = [np.asarray(s)[i, j] for i, j in E.OFFDIAG]
+            return np.ravel(p).astype(float), np.ravel(s).astype(float), e
+    return None, None, None
 
 
 def _rms(r: np.ndarray, rows: np.ndarray) -> float:
@@ -26,7 +66,16 @@ def _se_params(sensor: str, name: str, se_theta: np.ndarray) -> dict:
 
 
 def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, runtime_s: float, finish: bool = True) -> dict:
-    """The ``report.json`` dict of CONVENTIONS.md (RMS in g / rad/s) with extra diagnostic fields."""
+    """The ``report.json`` dict of CONVENTIONS.md (RMS in g / rad/s) with extra diagnostic fields.
+
+    Args:
+        prep: the prepared recording.
+        results: ``{sensor: SensorResult}``.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        runtime_s: wall time to record (s).
+        finish: add the cross-sensor parts (frames, plausible ranges, sort); False when
+            :func:`build_report_banded` merges per-sensor reports.
+    """
     rep: dict = {"baseline": {}, "effects": [], "rejected": [], "warnings": [], "final": {}}
     rep["baseline_kind"] = kind
     rep["n_samples"] = int(len(prep.t))
@@ -114,7 +163,14 @@ def build_report_banded(preps: dict[str, Prepared], results: dict[str, SensorRes
     """:func:`build_report` when each sensor was prepared in its own band
     (:func:`jaxcal.diagnose.core.diagnose_banded`): one report per sensor, merged; the frames
     (rotation, lever arm) from all sensors together. ``n_samples``/``dt_s`` are the gyroscope's
-    (each sensor's own under ``sensors``)."""
+    (each sensor's own under ``sensors``).
+
+    Args:
+        preps: ``{sensor: Prepared}``.
+        results: ``{sensor: SensorResult}``.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        runtime_s: wall time to record (s).
+    """
     ids = {id(p) for p in preps.values()}
     if len(ids) == 1:
         return build_report(next(iter(preps.values())), results, kind, runtime_s)
@@ -136,7 +192,12 @@ def build_report_banded(preps: dict[str, Prepared], results: dict[str, SensorRes
 
 
 def figures_banded(preps: dict[str, Prepared], results: dict[str, SensorResult]) -> dict:
-    """:func:`figures` per sensor, each with its own :class:`Prepared`."""
+    """:func:`figures` per sensor, each with its own :class:`Prepared`.
+
+    Args:
+        preps: ``{sensor: Prepared}``.
+        results: ``{sensor: SensorResult}``.
+    """
     out = {}
     for s in results:
         out.update(figures(preps[s], {s: results[s]}))
@@ -204,7 +265,7 @@ def _fmt(v) -> str:
 
 def report_markdown(rep: dict) -> str:
     """``report.md``: a short engineering report of a diagnosis."""
-    L = [f"# jaxcal diagnose report", "",
+    L = ["# jaxcal diagnose report", "",
          f"Baseline `{rep['baseline_kind']}`, {rep['n_samples']} samples at {1 / rep['dt_s']:.1f} Hz, run time {rep['runtime_s']:.1f} s.", ""]
     for n in rep["notes"]:
         L.append(f"- note: {n}")
@@ -262,7 +323,12 @@ def report_markdown(rep: dict) -> str:
 
 
 def figures(prep: Prepared, results: dict[str, SensorResult]) -> dict:
-    """Matplotlib figures: residual vs time, vs rate and temperature, fitted-effect check, ADEV."""
+    """Matplotlib figures: residual vs time, vs rate and temperature, fitted-effect check, ADEV.
+
+    Args:
+        prep: the prepared recording.
+        results: ``{sensor: SensorResult}``.
+    """
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -322,7 +388,13 @@ def figures(prep: Prepared, results: dict[str, SensorResult]) -> dict:
 
 
 def write_report(out_dir: str | os.PathLike, rep: dict, figs: dict | None = None) -> None:
-    """Write ``report.json``, ``report.md`` and ``<name>.png`` figures into ``out_dir``."""
+    """Write ``report.json``, ``report.md`` and ``<name>.png`` figures into ``out_dir``.
+
+    Args:
+        out_dir: output directory (created if missing).
+        rep: the ``report.json`` dict.
+        figs: ``{name: matplotlib figure}``; None: none.
+    """
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
 

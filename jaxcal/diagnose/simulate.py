@@ -7,7 +7,8 @@ translational acceleration; orientation ``R_{n+1} = R_n Exp(w_n dt)``; specific 
 Temperature: ``"cycle"`` (heat and cool, ``T0 + A sin^2(pi t / T)``), ``"ramp"`` (monotonic) or
 ``"none"``. Sensor: the thesis's baseline per axis ``raw = round(s (u + n) + b)`` with
 ``u = effects_forward(theta, inputs)`` (zero ``theta``: the baseline), white noise ``n`` and an
-optional bias random walk, optional saturation at ``+-limit`` LSB.
+optional bias random walk, optional saturation at ``+-limit`` LSB. Recordings come out as
+:class:`jaxcal.recording.Recording` (raw counts in LSB with the datasheet scale and zero bias).
 """
 
 from __future__ import annotations
@@ -18,13 +19,36 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
 from jaxcal.diagnose import effects as E
+from jaxcal.recording import Recording, recording_from_dict
 from jaxcal.rotation import integrate_orientation, random_rotation
+
+__all__ = ["RichConfig", "motion", "simulate_recording", "simulate_batch"]
 
 
 class RichConfig(NamedTuple):
-    """Settings of a simulated rich-motion recording (units in the names)."""
+    """Settings of a simulated rich-motion recording (units in the names).
+
+    Static: :func:`motion` and the sensor model take it as a static argument (a new value recompiles).
+
+    Attributes:
+        n: samples per recording.
+        fs: sampling rate (Hz).
+        w_peak: peak rotation rate of the oscillation (rad/s).
+        a_peak_g: peak translational acceleration (g).
+        hold_s: length of each static hold and of each moving window (s).
+        temp_profile: ``"cycle"``, ``"ramp"`` or ``"none"`` (see the module docstring).
+        temp_base_c: base temperature ``T0`` (degC).
+        temp_amp_c: temperature swing ``A`` (degC).
+        acc_noise_g, gyr_noise_rads: white-noise std per axis (g, rad/s).
+        acc_rw_g_per_sqrt_s, gyr_rw_rads_per_sqrt_s: bias random walk (g/sqrt(s), (rad/s)/sqrt(s)); 0: none.
+        acc_lsb_per_g, gyr_lsb_per_rads: datasheet scales (LSB per g, LSB per rad/s).
+        scale_tol: true scale per axis uniform within ``+-scale_tol`` (relative) of the datasheet.
+        acc_bias_max_lsb, gyr_bias_max_lsb: true bias per axis uniform in ``+-`` this (LSB).
+    """
 
     n: int = 20000
     fs: float = 100.0
@@ -51,8 +75,13 @@ def _gate(t, hold):
 
 
 @partial(jax.jit, static_argnames=("cfg",))
-def motion(key: jax.Array, cfg: RichConfig) -> E.Inputs:
-    """Reference motion ``Inputs`` (f, w, wdot, tc, dT, dt) and the temperature (N,) of one recording."""
+def motion(key: jax.Array, cfg: RichConfig) -> tuple[E.Inputs, Float[Array, " N"]]:
+    """Reference motion ``Inputs`` (f, w, wdot, tc, dT, dt) and the temperature (N,) of one recording.
+
+    Args:
+        key: PRNG key (traced; :func:`simulate_batch` vmaps over keys).
+        cfg: :class:`RichConfig` (static: a new value recompiles).
+    """
     k1, k2, k3, k4, k5, k6 = jax.random.split(key, 6)
     dt = 1.0 / cfg.fs
     t = jnp.arange(cfg.n) * dt
@@ -109,8 +138,8 @@ def _sensor_raw(key, cfg: RichConfig, sensor: str, theta, inp: E.Inputs):
     return s * (u + noise + walk) + b, s, b
 
 
-def _assemble(cfg: RichConfig, inp: E.Inputs, temp, sensors: dict, saturation: dict) -> tuple[dict, dict]:
-    """Recording dict and truth of one simulated recording from its motion and, per sensor,
+def _assemble(cfg: RichConfig, inp: E.Inputs, temp, sensors: dict, saturation: dict) -> tuple[Recording, dict]:
+    """:class:`Recording` and truth of one simulated recording from its motion and, per sensor,
     ``(raw, scale, bias, theta)`` (raw unrounded): LSB rounding, then optional clipping."""
     rec = {"t": np.arange(cfg.n) / cfg.fs, "fs": cfg.fs, "acc_ref": np.asarray(inp.f), "gyr_ref": np.asarray(inp.w),
            "acc_lsb_per_g": cfg.acc_lsb_per_g, "gyr_lsb_per_rads": cfg.gyr_lsb_per_rads,
@@ -127,17 +156,22 @@ def _assemble(cfg: RichConfig, inp: E.Inputs, temp, sensors: dict, saturation: d
         truth["theta"][sensor] = theta
         truth["scale"][sensor] = np.asarray(sc)
         truth["bias"][sensor] = np.asarray(b)
-    return rec, truth
+    return recording_from_dict(rec, "simulated recording"), truth
 
 
-def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = None, saturation: dict | None = None) -> tuple[dict, dict]:
-    """One recording (dict, CONVENTIONS.md keys; raw in LSB) and its hidden truth.
+def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = None,
+                       saturation: dict | None = None) -> tuple[Recording, dict]:
+    """One recording (raw in LSB, reference ``acc_ref``/``gyr_ref``, ``temp``) and its hidden truth.
 
     Args:
         key: PRNG key.
-        cfg: :class:`RichConfig`.
+        cfg: :class:`RichConfig` (static: a new value recompiles).
         effects: ``{(sensor, name): {param: value}}`` concealed smooth effects (vocabulary units).
         saturation: ``{sensor: limit_lsb}``.
+
+    Returns:
+        ``(rec, truth)``: the :class:`~jaxcal.recording.Recording` and
+        ``{"theta": {sensor: flat}, "scale": {sensor: (3,)}, "bias": {sensor: (3,)}, "wdot": (N, 3)}``.
     """
     effects = effects or {}
     km, ka, kg = jax.random.split(key, 3)
@@ -150,13 +184,13 @@ def simulate_recording(key: jax.Array, cfg: RichConfig, effects: dict | None = N
 
 
 def simulate_batch(keys: jax.Array, cfg: RichConfig, thetas: dict[str, np.ndarray] | None = None,
-                   saturation: list[dict] | None = None) -> list[tuple[dict, dict]]:
+                   saturation: list[dict] | None = None) -> list[tuple[Recording, dict]]:
     """Many recordings at once: :func:`simulate_recording` vmapped over seeds (and effect sizes).
 
     Args:
         keys: (S, 2) PRNG keys, one per recording (recording ``i`` equals
             ``simulate_recording(keys[i], cfg, ...)`` up to float rounding).
-        cfg: :class:`RichConfig` shared by all.
+        cfg: :class:`RichConfig` shared by all (static).
         thetas: ``{sensor: (S, P)}`` flat effect parameters per recording
             (:func:`jaxcal.diagnose.effects.theta_from_params`); missing sensors: no effect.
         saturation: per recording ``{sensor: limit_lsb}`` (or None).

@@ -1,12 +1,13 @@
 """Stress a real IMU + motion-capture recording the way real rigs are, with known truth.
 
-Every function takes a recording dict and returns a NEW dict (the input and its arrays are never
-modified); random ones take an explicit :class:`numpy.random.Generator`. A recording here holds
-``t`` (N,) s, ``acc`` (N, 3) g (``acc_unit`` = "g"), ``gyr`` (N, 3) rad/s (``gyr_unit`` =
-"rad/s"), ``pos_ref`` (N, 3) m and ``quat_ref`` (N, 4) (Hamilton ``[w, x, y, z]``, reference body
-to world) on the IMU time grid, NaN rows marking reference gaps, optionally ``ref_valid`` (N,) bool
-and the original reference track ``gt_t`` (M,), ``gt_pos`` (M, 3), ``gt_quat`` (M, 4) at its own
-times (as :func:`jaxcal.readers._attach_pose` leaves it). Other keys are carried over unchanged.
+Every function takes a :class:`~jaxcal.recording.Recording` and returns a NEW one
+(``Recording.replace``: the input and its arrays are never modified); random ones take an explicit
+:class:`numpy.random.Generator`. A recording here holds ``t`` (N,) s, ``acc`` (N, 3) g
+(``acc_unit`` = "g"), ``gyr`` (N, 3) rad/s (``gyr_unit`` = "rad/s"), ``pos_ref`` (N, 3) m and
+``quat_ref`` (N, 4) (Hamilton ``[w, x, y, z]``, reference body to world) on the IMU time grid, NaN
+rows marking reference gaps, optionally ``ref_valid`` (N,) bool and the original reference track
+``gt_t`` (M,), ``gt_pos`` (M, 3), ``gt_quat`` (M, 4) at its own times (as
+:func:`jaxcal.readers._attach_pose` leaves it). Other fields are carried over unchanged.
 
 Truth vocabulary (CONVENTIONS.md): ``time_offset`` tau > 0 means the IMU reads x(t - tau), i.e. it
 lags the reference; ``lever_arm`` r is the IMU position relative to the reference point in the
@@ -41,8 +42,10 @@ import jax
 import numpy as np
 
 from jaxcal.diagnose import effects as E
+from jaxcal.recording import Recording
 
 __all__ = [
+    "GT_MAX_GAP",
     "StressConfig",
     "add_vibration",
     "conceal",
@@ -61,6 +64,11 @@ __all__ = [
     "GOALS",
     "compose_truth",
     "alignment_errors",
+    "effect_at_mds",
+    "matrix_to_quat",
+    "quat_mul",
+    "quat_to_matrix",
+    "rotvec_to_matrix",
 ]
 
 GT_MAX_GAP = 0.05  # s: a gap in a ``gt_t`` track longer than this is a reference gap (readers' default)
@@ -70,7 +78,12 @@ GT_MAX_GAP = 0.05  # s: a gap in a ``gt_t`` track longer than this is a referenc
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a ⊗ b`` of ``[w, x, y, z]`` quaternions (broadcasting over leading axes)."""
+    """Hamilton product ``a ⊗ b`` of ``[w, x, y, z]`` quaternions (broadcasting over leading axes).
+
+    Args:
+        a: (..., 4) left factor, ``[w, x, y, z]``.
+        b: (..., 4) right factor, ``[w, x, y, z]``.
+    """
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     aw, av = a[..., :1], a[..., 1:]
     bw, bv = b[..., :1], b[..., 1:]
@@ -166,19 +179,19 @@ def _interp_track(ts, pos, quat, good, t, max_gap):
     return p, q, ok
 
 
-def _grid_valid(rec: dict) -> np.ndarray:
+def _grid_valid(rec: Recording) -> np.ndarray:
     """Usable reference samples on the IMU grid: finite pose and ``ref_valid`` (when given)."""
-    good = np.isfinite(rec["pos_ref"]).all(1) & np.isfinite(rec["quat_ref"]).all(1)
-    if "ref_valid" in rec:
-        good &= np.asarray(rec["ref_valid"], bool)
+    good = np.isfinite(rec.pos_ref).all(1) & np.isfinite(rec.quat_ref).all(1)
+    if rec.ref_valid is not None:
+        good &= np.asarray(rec.ref_valid, bool)
     return good
 
 
-def _has_track(rec: dict) -> bool:
-    return all(k in rec for k in ("gt_t", "gt_pos", "gt_quat"))
+def _has_track(rec: Recording) -> bool:
+    return rec.gt_t is not None and rec.gt_pos is not None and rec.gt_quat is not None
 
 
-def _sampler(rec: dict, max_gap: float | None):
+def _sampler(rec: Recording, max_gap: float | None):
     """``f(times) -> (pos, quat, ok)``: the recording's reference pose at arbitrary times.
 
     Uses the track ``gt_t/gt_pos/gt_quat`` when present (gaps: spacing over ``max_gap``, default
@@ -186,16 +199,16 @@ def _sampler(rec: dict, max_gap: float | None):
     taken between the bracketing IMU samples); else the pose on the IMU grid (gaps: NaN rows or
     ``ref_valid`` False; spacing over ``max_gap``, default 1.5 sample intervals).
     """
-    t = np.asarray(rec["t"], np.float64)
-    pos, quat = np.asarray(rec["pos_ref"], np.float64), np.asarray(rec["quat_ref"], np.float64)
+    t = np.asarray(rec.t, np.float64)
+    pos, quat = np.asarray(rec.pos_ref, np.float64), np.asarray(rec.quat_ref, np.float64)
     gv = _grid_valid(rec)
     if _has_track(rec):
-        ts = np.asarray(rec["gt_t"], np.float64)
-        tp, tq = np.asarray(rec["gt_pos"], np.float64), np.asarray(rec["gt_quat"], np.float64)
+        ts = np.asarray(rec.gt_t, np.float64)
+        tp, tq = np.asarray(rec.gt_pos, np.float64), np.asarray(rec.gt_quat, np.float64)
         tgood = np.isfinite(tp).all(1) & np.isfinite(tq).all(1)
         mg = GT_MAX_GAP if max_gap is None else float(max_gap)
-        has_rv = "ref_valid" in rec
-        rv = np.asarray(rec["ref_valid"], bool) if has_rv else None
+        has_rv = rec.ref_valid is not None
+        rv = np.asarray(rec.ref_valid, bool) if has_rv else None
 
         def f(tq_: np.ndarray):
             p, q, ok = _interp_track(ts, tp, tq, tgood, tq_, mg)
@@ -217,7 +230,7 @@ def _sampler(rec: dict, max_gap: float | None):
 # ----------------------------------------------------------------------------- geometry and clock
 
 
-def move_reference_point(rec: dict, r: np.ndarray) -> dict:
+def move_reference_point(rec: Recording, r: np.ndarray) -> Recording:
     """Move the reference point so the IMU sits at ``r`` (m, reference body frame) from it.
 
     ``p_ref' = p_ref - R_world_ref r`` on the IMU grid and, when present, on the track
@@ -229,6 +242,10 @@ def move_reference_point(rec: dict, r: np.ndarray) -> dict:
 
     Truth: lever arm r' = r0 + r (r0 the as-recorded one, both in the reference body frame);
     tau and R_ref_imu unchanged.
+
+    Args:
+        rec: the recording (pose ``pos_ref``/``quat_ref``, optionally the track ``gt_*``).
+        r: (3,) displacement added to the lever arm (m, reference body frame).
     """
     from jaxcal.rotation import matrix_from_quat
 
@@ -238,19 +255,23 @@ def move_reference_point(rec: dict, r: np.ndarray) -> dict:
         R[ok] = np.asarray(matrix_from_quat(jax.numpy.asarray(q[ok])))
         return p - np.einsum("nij,j->ni", R, r)
 
-    out = dict(rec)
-    out["pos_ref"] = moved(rec["pos_ref"], rec["quat_ref"])
+    changes = {"pos_ref": moved(rec.pos_ref, rec.quat_ref)}
     if _has_track(rec):
-        out["gt_pos"] = moved(np.asarray(rec["gt_pos"], np.float64), np.asarray(rec["gt_quat"], np.float64))
-    return out
+        changes["gt_pos"] = moved(np.asarray(rec.gt_pos, np.float64), np.asarray(rec.gt_quat, np.float64))
+    return rec.replace(**changes)
 
 
-def conceal_lever_arm(rec: dict, r: np.ndarray) -> dict:
-    """Conceal a lever arm ``r`` (m, reference frame): :func:`move_reference_point` (same code)."""
+def conceal_lever_arm(rec: Recording, r: np.ndarray) -> Recording:
+    """Conceal a lever arm ``r`` (m, reference frame): :func:`move_reference_point` (same code).
+
+    Args:
+        rec: the recording (with a pose).
+        r: (3,) lever arm to conceal (m, reference body frame).
+    """
     return move_reference_point(rec, r)
 
 
-def rotate_reference_body(rec: dict, R_delta: np.ndarray) -> dict:
+def rotate_reference_body(rec: Recording, R_delta: np.ndarray) -> Recording:
     """Rotate the mocap body frame: ``R_world_ref' = R_world_ref @ R_delta``.
 
     Quaternions: ``q' = q ⊗ q_delta`` (``quat_ref`` and, when present, ``gt_quat``); positions (the
@@ -261,19 +282,22 @@ def rotate_reference_body(rec: dict, R_delta: np.ndarray) -> dict:
     Truth: if the old reference frame was the IMU frame, afterwards ``R_ref_imu = R_delta^T``; in
     general ``R_ref_imu' = R_delta^T R_ref_imu``, and a lever arm r given in the old frame reads
     ``r' = R_delta^T r`` in the new one; tau unchanged.
+
+    Args:
+        rec: the recording (pose ``quat_ref``, optionally the track ``gt_quat``).
+        R_delta: (3, 3) rotation matrix; anything else raises ``ValueError``.
     """
     R_delta = np.asarray(R_delta, np.float64)
     if R_delta.shape != (3, 3) or not np.allclose(R_delta @ R_delta.T, np.eye(3), atol=1e-9) or np.linalg.det(R_delta) < 0:
         raise ValueError("R_delta must be a 3x3 rotation matrix")
     qd = matrix_to_quat(R_delta)
-    out = dict(rec)
-    out["quat_ref"] = quat_mul(np.asarray(rec["quat_ref"], np.float64), qd)
+    changes = {"quat_ref": quat_mul(np.asarray(rec.quat_ref, np.float64), qd)}
     if _has_track(rec):
-        out["gt_quat"] = quat_mul(np.asarray(rec["gt_quat"], np.float64), qd)
-    return out
+        changes["gt_quat"] = quat_mul(np.asarray(rec.gt_quat, np.float64), qd)
+    return rec.replace(**changes)
 
 
-def shift_reference_clock(rec: dict, tau: float, max_gap: float | None = None) -> dict:
+def shift_reference_clock(rec: Recording, tau: float, max_gap: float | None = None) -> Recording:
     """Shift the reference clock so the IMU lags the reference by ``tau`` more seconds.
 
     ``reference'(t) = reference(t + tau)``: the pose is re-interpolated at ``t + tau`` (linear in
@@ -294,20 +318,19 @@ def shift_reference_clock(rec: dict, tau: float, max_gap: float | None = None) -
     lever arm and R_ref_imu unchanged.
     """
     tau = float(tau)
-    t = np.asarray(rec["t"], np.float64)
+    t = np.asarray(rec.t, np.float64)
     p, q, ok = _sampler(rec, max_gap)(t + tau)
-    out = dict(rec)
-    out["pos_ref"], out["quat_ref"], out["ref_valid"] = p, q, ok
+    changes = {"pos_ref": p, "quat_ref": q, "ref_valid": ok}
     if _has_track(rec):
-        out["gt_t"] = np.asarray(rec["gt_t"], np.float64) - tau
-    return out
+        changes["gt_t"] = np.asarray(rec.gt_t, np.float64) - tau
+    return rec.replace(**changes)
 
 
 # ----------------------------------------------------------------------------- mocap as a real system
 
 
 def decimate_reference(
-    rec: dict,
+    rec: Recording,
     rng: np.random.Generator,
     rate_hz: float = 100.0,
     jitter_s: float = 0.003,
@@ -315,7 +338,7 @@ def decimate_reference(
     dropout_len: tuple[float, float] = (0.02, 0.3),
     max_gap: float | None = None,
     nan_invalid: bool = True,
-) -> dict:
+) -> Recording:
     """Re-record the reference as a slow, jittery, lossy motion-capture system.
 
     1. Stamps ``k / rate_hz`` over the span of the source (the track ``gt_*`` when present, else
@@ -335,16 +358,26 @@ def decimate_reference(
 
     Truth: unchanged (the jitter is zero-mean, so there is no bias in time; the pose error on the
     IMU grid is about jitter x speed, plus the linear-interpolation error of a ``rate_hz`` track).
+
+    Args:
+        rec: the recording (a pose on the IMU grid, optionally the track ``gt_*``).
+        rng: numpy generator (jitter, then dropout runs).
+        rate_hz: motion-capture rate (Hz).
+        jitter_s: time-stamp jitter std (s); 0: none.
+        dropout_frac: fraction of stamps removed in runs; 0: none.
+        dropout_len: ``(min, max)`` length of a dropout run (s).
+        max_gap: longest source spacing interpolated across (s); None: as in :func:`shift_reference_clock`.
+        nan_invalid: also set the pose to NaN where ``ref_valid`` is False.
     """
     from jaxcal.readers import _attach_pose
 
     rate = float(rate_hz)
     sample = _sampler(rec, max_gap)
     if _has_track(rec):
-        span = np.asarray(rec["gt_t"], np.float64)
+        span = np.asarray(rec.gt_t, np.float64)
         span = (span[0], span[-1])
     else:
-        span = (float(rec["t"][0]), float(rec["t"][-1]))
+        span = (float(rec.t[0]), float(rec.t[-1]))
     k = np.arange(np.ceil(span[0] * rate), np.floor(span[1] * rate) + 1)
     stamps = k / rate
     e = rng.normal(0.0, jitter_s, len(stamps)) if jitter_s > 0 else np.zeros(len(stamps))
@@ -362,14 +395,14 @@ def decimate_reference(
         keep &= ~drop
     if keep.sum() < 2:
         raise ValueError("decimated reference has fewer than 2 samples")
-    out = dict(rec)
-    out.pop("ref_valid", None)
-    _attach_pose(out, stamps[keep], p[keep], q[keep], 1.5 / rate, where="decimated pose")
+    pose = {"t": rec.t}  # _attach_pose fills pos_ref, quat_ref, ref_valid and the track gt_*
+    _attach_pose(pose, stamps[keep], p[keep], q[keep], 1.5 / rate, where="decimated pose")
     if nan_invalid:
-        bad = ~out["ref_valid"]
-        out["pos_ref"] = np.where(bad[:, None], np.nan, out["pos_ref"])
-        out["quat_ref"] = np.where(bad[:, None], np.nan, out["quat_ref"])
-    return out
+        bad = ~pose["ref_valid"]
+        pose["pos_ref"] = np.where(bad[:, None], np.nan, pose["pos_ref"])
+        pose["quat_ref"] = np.where(bad[:, None], np.nan, pose["quat_ref"])
+    del pose["t"]
+    return rec.replace(**pose)
 
 
 def vibration_signal(
@@ -387,6 +420,15 @@ def vibration_signal(
     ``band_hz`` of ``order`` run forward and backward (``sosfiltfilt``, zero phase; with the default
     order 8 about 1.2 % of the power lies outside ``band_hz``, 2.6 % with order 4), each axis then
     scaled to exactly ``rms``.
+
+    Args:
+        rng: numpy generator.
+        n: IMU samples (the output has ``n * oversample`` rows).
+        fs: IMU rate (Hz).
+        rms: rms per axis of the output (in the unit wanted).
+        band_hz: ``(low, high)`` pass band (Hz), inside ``(0, oversample * fs / 2)``.
+        oversample: rate of the signal, in multiples of ``fs``.
+        order: Butterworth filter order.
     """
     from scipy.signal import butter, sosfiltfilt
 
@@ -401,13 +443,13 @@ def vibration_signal(
 
 
 def add_vibration(
-    rec: dict,
+    rec: Recording,
     rng: np.random.Generator,
     rms_g: float = 0.3,
     band_hz: tuple[float, float] = (80.0, 250.0),
     oversample: int = 8,
     gyr_rms: float = 0.0,
-) -> dict:
+) -> Recording:
     """Rotor-like vibration on the accelerometer (and optionally the gyroscope), aliased.
 
     :func:`vibration_signal` at ``oversample`` x the IMU rate (rms ``rms_g`` per axis at that
@@ -417,26 +459,46 @@ def add_vibration(
     to ``gyr`` (drawn after the accelerometer's). The IMU grid is taken as uniform (median step).
 
     Truth: unchanged (zero-mean noise).
+
+    Args:
+        rec: the recording (``acc`` in g, ``gyr`` in rad/s).
+        rng: numpy generator (the accelerometer's draw, then the gyroscope's).
+        rms_g: accelerometer vibration, rms per axis at the oversampled rate (g).
+        band_hz: ``(low, high)`` vibration band (Hz).
+        oversample: rate of the vibration, in multiples of the IMU rate.
+        gyr_rms: gyroscope vibration, rms per axis (rad/s); 0: none.
     """
     for k, u in (("acc", "g"), ("gyr", "rad/s")):
-        if k in rec and rec.get(f"{k}_unit") != u:
-            raise ValueError(f"add_vibration needs {k} in {u} ({k}_unit = {rec.get(f'{k}_unit')!r})")
-    t = np.asarray(rec["t"], np.float64)
+        unit = getattr(rec, f"{k}_unit")
+        if getattr(rec, k) is not None and unit != u:
+            raise ValueError(f"add_vibration needs {k} in {u} ({k}_unit = {unit!r})")
+    t = np.asarray(rec.t, np.float64)
     n = len(t)
     fs = 1.0 / float(np.median(np.diff(t)))
     os_ = int(oversample)
-    out = dict(rec)
-    out["acc"] = np.asarray(rec["acc"], np.float64) + vibration_signal(rng, n, fs, rms_g, band_hz, os_)[::os_][:n]
+    changes = {"acc": np.asarray(rec.acc, np.float64) + vibration_signal(rng, n, fs, rms_g, band_hz, os_)[::os_][:n]}
     if gyr_rms > 0:
-        out["gyr"] = np.asarray(rec["gyr"], np.float64) + vibration_signal(rng, n, fs, gyr_rms, band_hz, os_)[::os_][:n]
-    return out
+        changes["gyr"] = np.asarray(rec.gyr, np.float64) + vibration_signal(rng, n, fs, gyr_rms, band_hz, os_)[::os_][:n]
+    return rec.replace(**changes)
 
 
 # ----------------------------------------------------------------------------- composed stress
 
 
 class StressConfig(NamedTuple):
-    """One stress of a recording (see :func:`stress`)."""
+    """One stress of a recording (see :func:`stress`).
+
+    Attributes:
+        rate_hz: motion-capture rate (Hz).
+        jitter_s: motion-capture time-stamp jitter, 1 sigma (s).
+        dropout_frac: fraction of motion-capture samples lost in runs.
+        vibration_rms_g: accelerometer vibration, rms per axis (g); 0: none.
+        lever_arm_m: reference point move (m), in the input's reference body frame.
+        rotation_deg: reference body rotation, axis-angle (deg).
+        clock_shift_s: ``tau`` added to the IMU's lag behind the reference (s).
+        dropout_len_s: ``(min, max)`` length of a dropout run (s).
+        vibration_band_hz: ``(low, high)`` vibration band (Hz).
+    """
 
     rate_hz: float = 100.0  # mocap rate
     jitter_s: float = 0.003  # mocap time-stamp jitter (1 sigma)
@@ -449,7 +511,7 @@ class StressConfig(NamedTuple):
     vibration_band_hz: tuple[float, float] = (80.0, 250.0)  # vibration band
 
 
-def stress(rec: dict, cfg: StressConfig, rng: np.random.Generator) -> tuple[dict, dict]:
+def stress(rec: Recording, cfg: StressConfig, rng: np.random.Generator) -> tuple[Recording, dict]:
     """Apply a :class:`StressConfig`; returns ``(stressed recording, truth)``.
 
     Order (each step acts on the physical object the previous one left): move the reference point
@@ -468,10 +530,15 @@ def stress(rec: dict, cfg: StressConfig, rng: np.random.Generator) -> tuple[dict
 
     The as-recorded offsets (tau0, R0, r0) add on top: tau0 + tau, R_delta^T R0,
     R_delta^T (r0 + lever_arm_m).
+
+    Args:
+        rec: the recording (``acc``/``gyr`` in g and rad/s, pose ``pos_ref``/``quat_ref``).
+        cfg: the stress.
+        rng: numpy generator (decimation, then vibration).
     """
     r = np.asarray(cfg.lever_arm_m, np.float64)
     Rd = rotvec_to_matrix(np.deg2rad(np.asarray(cfg.rotation_deg, np.float64)))
-    out = move_reference_point(rec, r) if np.any(r != 0) else dict(rec)
+    out = move_reference_point(rec, r) if np.any(r != 0) else rec.replace()
     out = rotate_reference_body(out, Rd)
     if cfg.clock_shift_s != 0:
         out = shift_reference_clock(out, cfg.clock_shift_s)
@@ -508,54 +575,74 @@ def random_stress_config(rng: np.random.Generator) -> StressConfig:
 # ----------------------------------------------------------------------------- concealed IMU effects
 
 
-def conceal_shift(rec: dict, tau: float, sensors: tuple[str, ...] = ("acc", "gyr")) -> dict:
+def conceal_shift(rec: Recording, tau: float, sensors: tuple[str, ...] = ("acc", "gyr")) -> Recording:
     """Delay the IMU streams ``sensors`` by ``tau`` s (band-limited shift): they read x(t - tau).
 
     Uses :func:`jaxcal.diagnose.effects.shift_signal` with the median step; the first/last
     ``|tau| / dt`` samples are reflections. Truth: that sensor's time_offset += tau.
+
+    Args:
+        rec: the recording.
+        tau: delay (s); positive: the streams lag.
+        sensors: the streams to delay.
     """
-    dt = float(np.median(np.diff(rec["t"])))
-    out = dict(rec)
-    for k in sensors:
-        out[k] = np.asarray(E.shift_signal(jax.numpy.asarray(rec[k]), jax.numpy.asarray(tau), dt), np.float64)
-    return out
+    dt = float(np.median(np.diff(rec.t)))
+    return rec.replace(**{k: np.asarray(E.shift_signal(jax.numpy.asarray(getattr(rec, k)), jax.numpy.asarray(tau), dt), np.float64)
+                          for k in sensors})
 
 
-def conceal_gsens(rec: dict, G: np.ndarray) -> dict:
+def conceal_gsens(rec: Recording, G: np.ndarray) -> Recording:
     """Gyro reads ``+ G f`` with ``f`` the measured specific force (g), ``G`` (3, 3) or (9,) in
-    (rad/s)/g. Truth: g_sensitivity += G (to first order; ``f`` is the measured, not the true, force)."""
-    out = dict(rec)
-    out["gyr"] = rec["gyr"] + rec["acc"] @ np.asarray(G).reshape(3, 3).T
-    return out
+    (rad/s)/g. Truth: g_sensitivity += G (to first order; ``f`` is the measured, not the true, force).
+
+    Args:
+        rec: the recording (``acc`` in g, ``gyr`` in rad/s).
+        G: (3, 3) or (9,) g-sensitivity ((rad/s)/g).
+    """
+    return rec.replace(gyr=rec.gyr + rec.acc @ np.asarray(G).reshape(3, 3).T)
 
 
-def conceal_misalignment(rec: dict, sensor: str, m6: np.ndarray) -> dict:
+def conceal_misalignment(rec: Recording, sensor: str, m6: np.ndarray) -> Recording:
     """Sensor reads ``(I + m) y`` (``m`` off-diagonal, entries ``m6`` in ``E.OFFDIAG`` order).
 
     Truth: misalignment about m (to first order in m and the as-recorded scale error).
+
+    Args:
+        rec: the recording.
+        sensor: ``"acc"`` or ``"gyr"``.
+        m6: (6,) off-diagonal entries of ``m``, in ``E.OFFDIAG`` order.
     """
     mm = np.zeros((3, 3))
     for k, (i, j) in enumerate(E.OFFDIAG):
         mm[i, j] = m6[k]
-    out = dict(rec)
-    out[sensor] = rec[sensor] + rec[sensor] @ mm.T
-    return out
+    y = getattr(rec, sensor)
+    return rec.replace(**{sensor: y + y @ mm.T})
 
 
-def conceal_drift(rec: dict, sensor: str, d: np.ndarray) -> dict:
+def conceal_drift(rec: Recording, sensor: str, d: np.ndarray) -> Recording:
     """Sensor reads ``+ d (t - t_mid)`` (a linear bias drift, ``d`` (3,) unit/s, ``t_mid`` the
-    recording's mid time). Truth: bias_drift += d (up to the baseline's scale)."""
-    t = rec["t"]
-    out = dict(rec)
-    out[sensor] = rec[sensor] + np.outer(t - 0.5 * (t[0] + t[-1]), d)
-    return out
+    recording's mid time). Truth: bias_drift += d (up to the baseline's scale).
+
+    Args:
+        rec: the recording.
+        sensor: ``"acc"`` or ``"gyr"``.
+        d: (3,) drift rate (the sensor's unit per s).
+    """
+    t = rec.t
+    return rec.replace(**{sensor: getattr(rec, sensor) + np.outer(t - 0.5 * (t[0] + t[-1]), d)})
 
 
-def conceal(rec: dict, sensor: str, name: str, v: np.ndarray) -> dict:
+def conceal(rec: Recording, sensor: str, name: str, v: np.ndarray) -> Recording:
     """Conceal vocabulary effect ``name`` of ``sensor`` with flat parameters ``v``.
 
     ``lever_arm`` (acc; v = r), ``time_offset`` (v = [tau]), ``g_sensitivity`` (gyr; v = G flat),
     ``misalignment`` (v = m6), ``bias_drift`` (v = d). Raises KeyError for any other name.
+
+    Args:
+        rec: the recording (``acc``/``gyr`` in g and rad/s; a pose for ``lever_arm``).
+        sensor: ``"acc"`` or ``"gyr"``.
+        name: the vocabulary effect (``docs/CONVENTIONS.md``).
+        v: flat parameters of the effect (vocabulary units).
     """
     if name == "lever_arm":
         return conceal_lever_arm(rec, v)
@@ -578,7 +665,14 @@ GOALS = {"tau_s": 1e-3, "rotation_deg": 0.5, "r_m": 0.01}  # issue 14's goals; o
 def compose_truth(truth: dict, tau0: float, R0: np.ndarray, r0: np.ndarray) -> dict:
     """The expected alignment of a stressed real recording: the stress's ``truth`` (for an input
     with zero offsets, :func:`stress`) composed with the input's as-recorded estimates
-    ``(tau0, R0 = R_ref_imu, r0)``: ``tau0 + tau``, ``R_delta^T R0``, ``r + R_delta^T r0``."""
+    ``(tau0, R0 = R_ref_imu, r0)``: ``tau0 + tau``, ``R_delta^T R0``, ``r + R_delta^T r0``.
+
+    Args:
+        truth: the truth dict :func:`stress` returns.
+        tau0: as-recorded time offset (s).
+        R0: (3, 3) as-recorded ``R_ref_imu``.
+        r0: (3,) as-recorded lever arm (m, reference body frame).
+    """
     Rt = np.asarray(truth["R_ref_imu"], np.float64)
     return {"tau": float(tau0) + float(truth["tau"]), "R_ref_imu": Rt @ np.asarray(R0, np.float64),
             "r": np.asarray(truth["r"], np.float64) + Rt @ np.asarray(r0, np.float64)}
@@ -587,7 +681,14 @@ def compose_truth(truth: dict, tau0: float, R0: np.ndarray, r0: np.ndarray) -> d
 def alignment_errors(align: dict, expected: dict, goals: dict = GOALS) -> dict:
     """Errors of an ``align.json`` dict against ``expected`` (:func:`compose_truth`) and whether
     each lies within its goal: ``|err| <= max(goal, 3 standard errors)`` (per component for ``r``).
-    The rotation error is the angle of ``R_est R_expected^T``."""
+    The rotation error is the angle of ``R_est R_expected^T``.
+
+    Args:
+        align: an ``align.json`` dict (``tau``, ``tau_stderr``, ``R_ref_imu``, optionally
+            ``rotation_deg_stderr``, ``r`` and ``stderr.r``).
+        expected: the expected alignment (:func:`compose_truth`).
+        goals: tolerance per quantity (``tau_s``, ``rotation_deg``, ``r_m``); default :data:`GOALS`.
+    """
     from scipy.spatial.transform import Rotation
 
     tau_err = float(align["tau"]) - float(expected["tau"])
@@ -603,3 +704,45 @@ def alignment_errors(align: dict, expected: dict, goals: dict = GOALS) -> dict:
                     "r_ok": bool(np.all(np.abs(r_err) <= np.maximum(goals["r_m"], 3 * r_se)))})
     out["all_ok"] = bool(out["tau_ok"] and out["rotation_ok"] and out.get("r_ok", True))
     return out
+
+
+# ----------------------------------------------------------------------------- effects sized by a null report
+
+
+def effect_at_mds(rng: np.random.Generator, null_report: dict, sensor: str, name: str, m: float,
+                  y: np.ndarray) -> tuple[dict, dict, np.ndarray]:
+    """An effect of ``m`` times its minimum detectable size, in a random direction of its parameters.
+
+    The size comes from the null report's detectability entry (``mds``: Fisher matrix, detectable
+    components, noncentrality ``lambda_star``), so the injected effect is ``m`` x MDS along a random
+    direction of the detectable components. Saturation: a clipping limit ``m`` x the detectable depth
+    below the model's noiseless peak (or the observed peak of ``y``).
+
+    Args:
+        rng: numpy generator for the direction.
+        null_report: :func:`jaxcal.diagnose.diagnose_recording`'s report of the recording without it.
+        sensor, name: the vocabulary effect (``docs/CONVENTIONS.md``).
+        m: size in multiples of the MDS.
+        y: (N, 3) the sensor's output (the saturation fallback peak).
+
+    Returns:
+        ``(effects, saturation, truth)``: the simulator's effect parameters ``{(sensor, name): params}``,
+        the saturation limits ``{sensor: limit}``, and the flat true parameters.
+    """
+    md = null_report["sensors"][sensor]["mds"][name]
+    if name == "saturation":
+        # the depth is below the model's noiseless peak (the observed peak sits a few noise sd above it)
+        peak = float(md.get("predicted_peak_lsb", np.max(np.abs(y))))
+        lim = float(np.floor(peak - m * md["depth_lsb"]))
+        return {}, {sensor: lim}, np.array([lim])
+    F = np.asarray(md["fisher"])
+    comp = np.asarray(md["components"])
+    v = rng.standard_normal(len(comp)) * comp
+    u = v / np.linalg.norm(v)
+    th = m * np.sqrt(md["lambda_star"] / float(u @ F @ u)) * u
+    sl = E.slot(sensor, name)
+    params = {sl.param: th if sl.shape != () else th[:1]}
+    flat = np.zeros(E.N_THETA[sensor])
+    flat[sl.start : sl.start + sl.size] = th
+    return {(sensor, name): params}, {}, flat[sl.start : sl.start + sl.size]
+
