@@ -5,15 +5,17 @@
     jaxcal calibrate --method METHOD RECORDING --out MODEL.npz [--seed N] [...]
     jaxcal apply MODEL.npz RECORDING --out CALIBRATED.npz
     jaxcal simulate dataset2 --out DIR [--seed N] [--labels]
-    jaxcal simulate dataset1 --out DIR [--seed N]       (if jaxcal.simulate.dataset1 exists)
+    jaxcal simulate dataset1 --out DIR [--seed N]
     jaxcal import FORMAT FILE... --out REC.npz [--fs HZ] [...]
     jaxcal diagnose RECORDING --out DIR [--baseline diag|affine]
     jaxcal methods
     jaxcal --version
 
 Subcommands live in the :data:`COMMANDS` table (name -> help, argument builder, handler); more
-plug in with :func:`register_command`. ``import`` (:mod:`jaxcal.readers`) and ``diagnose``
-(:mod:`jaxcal.diagnose`) import their modules on use and exit 2 if this build lacks them. Exit status: 0 on
+plug in with :func:`register_command`. This module only parses arguments and dispatches: methods
+come from :mod:`jaxcal.methods` (each ``calibrate`` flag's default is its method's options type's),
+model files from :mod:`jaxcal.model_file`, simulated recordings from
+:mod:`jaxcal.simulate.recordings`. Exit status: 0 on
 success; 2 on bad input, with exactly one line on stderr that says what is wrong and where (no
 traceback); 130 on Ctrl-C. Bad input is refused where it is read (the readers, recording
 validation with its plausibility checks, model loading, each method's requirements), before any
@@ -27,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib
 import json
 import math
 import os
@@ -35,13 +36,21 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterator, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from jaxcal import __version__
+from jaxcal import __version__, methods, readers
+from jaxcal.constants import GYR_RANGE_DEGS, SENSORS
+from jaxcal.methods import ModelError, MultiposOptions, NNOptions
+from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import Recording, RecordingError, atomic_output, load_recording, save_recording
+from jaxcal.simulate import Dataset2Config
+from jaxcal.simulate.recordings import dataset1_recordings, dataset2_recordings
+
+__all__ = ["COMMANDS", "OPTION_FLAGS", "PROG", "Command", "UsageError", "build_parser", "main", "register_command"]
 
 PROG = "jaxcal"
 
@@ -58,7 +67,14 @@ class _Parser(argparse.ArgumentParser):
 
 
 class Command(NamedTuple):
-    """A subcommand: one-line help, a function adding its arguments, and its handler."""
+    """A subcommand: one-line help, a function adding its arguments, and its handler.
+
+    Attributes:
+        help: one-line help, listed by ``jaxcal --help``.
+        add_arguments: adds the subcommand's arguments to its ``argparse`` parser.
+        run: the handler; takes the parsed arguments, returns the exit status.
+        description: longer text of ``jaxcal NAME --help``; empty: ``help``.
+    """
 
     help: str
     add_arguments: Callable[[argparse.ArgumentParser], None]
@@ -70,7 +86,12 @@ COMMANDS: dict[str, Command] = {}
 
 
 def register_command(name: str, command: Command) -> None:
-    """Add a subcommand to the ``jaxcal`` CLI (e.g. ``diagnose``, ``import``)."""
+    """Add a subcommand to the ``jaxcal`` CLI (e.g. ``diagnose``, ``import``).
+
+    Args:
+        name: the subcommand's name (``jaxcal NAME``); an existing one is replaced.
+        command: its :class:`Command`.
+    """
     COMMANDS[name] = command
 
 
@@ -226,56 +247,10 @@ def _int_tuple(text: str) -> tuple[int, ...]:
 
 def _sensors(text: str) -> tuple[str, ...]:
     vals = tuple(v for v in text.replace(",", " ").split())
-    bad = [v for v in vals if v not in ("acc", "gyr")]
+    bad = [v for v in vals if v not in SENSORS]
     if not vals or bad:
         raise argparse.ArgumentTypeError(f"expected acc, gyr or acc,gyr, got {text!r}")
     return vals
-
-
-def _add_calibrate(p: argparse.ArgumentParser) -> None:
-    from jaxcal.model_io import method_names
-
-    p.add_argument("recording", metavar="RECORDING", help="recording (.npz or .csv; see CONVENTIONS.md)")
-    p.add_argument(
-        "--method",
-        required=True,
-        choices=method_names(),
-        help="linear | nn (need acc_ref/gyr_ref labels); online-thesis (thesis chapter 4; needs seq ids and "
-        "datasheet values in the metadata); online (streaming self-calibration; needs seq ids, datasheet values "
-        "optional); multipos (static poses joined by rotations; no labels, no datasheet values). "
-        "`jaxcal methods` lists what this build has",
-    )
-    p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
-    p.add_argument("--seed", type=_seed, default=0, help="PRNG seed in [0, 2**32 - 1] (NN initial weights etc.; default 0)")
-    p.add_argument("--sensors", type=_sensors, default=None, help="calibrate only these: acc, gyr or acc,gyr")
-    g = p.add_argument_group("nn options")
-    g.add_argument("--widths", type=_int_tuple, default=(7500,), help="hidden widths, e.g. 7500 or 5,10,5 (default 7500)")
-    g.add_argument("--slope", type=_real(0.0, 1.0, open_low=False), default=0.1, help="leaky-ReLU slope in [0, 1] (default 0.1)")
-    g.add_argument("--lr", type=_real(0.0, 10.0), default=1e-2, help="Adam learning rate (default 1e-2)")
-    g.add_argument("--patience", type=_count(1, 10**9), default=1000, help="early-stopping patience in epochs (default 1000)")
-    g.add_argument("--max-epochs", type=_count(1, 10**9), default=10000, help="maximum full-batch epochs (default 10000)")
-    g.add_argument(
-        "--val-fraction",
-        type=_real(0.0, 1.0),
-        default=0.15,
-        help="share of labelled samples held out for early stopping, whole sequences if `seq` is given (default 0.15)",
-    )
-    g.add_argument("--acc-range", type=_real(0.0, 1e6), default=2.0, help="accelerometer full scale in g for eq. 3.6 bounds (default 2)")
-    g.add_argument(
-        "--gyr-range", type=_real(0.0, 1e6), default=250.0, help="gyroscope full scale in deg/s for eq. 3.6 bounds (default 250)"
-    )
-    m = p.add_argument_group("multipos options")
-    m.add_argument(
-        "--turns", type=_turns, default=None, metavar="T0-T1[,T0-T1...]",
-        help="whole turns about the vertical (e.g. turned flat on a table), start-end in seconds; their axes "
-        "are read from the accelerometer at the rests around them (no labels)",
-    )
-    m.add_argument(
-        "--partial", action="store_true",
-        help="when the poses do not determine every combination, fit only those they do and leave the rest "
-        "as recorded (recordings in g and rad/s; an undetermined gyroscope is not calibrated) instead of refusing",
-    )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def _turns(text: str) -> tuple[tuple[float, float], ...]:
@@ -290,36 +265,113 @@ def _turns(text: str) -> tuple[tuple[float, float], ...]:
     return out
 
 
-def _run_calibrate(args: argparse.Namespace) -> int:
-    from jaxcal.model_io import FitOptions, ModelError, fit_model, get_method, save_model
+def _degs_to_rads(v: float) -> float:
+    return v * math.pi / 180.0
 
+
+# Method option field (the argparse dest) -> (flag, conversion of the flag's value to the option's).
+OPTION_FLAGS: dict[str, tuple[str, Callable[[Any], Any] | None]] = {
+    "seed": ("--seed", None),
+    "sensors": ("--sensors", None),
+    "widths": ("--widths", None),
+    "slope": ("--slope", None),
+    "learning_rate": ("--lr", None),
+    "patience": ("--patience", None),
+    "max_epochs": ("--max-epochs", None),
+    "val_fraction": ("--val-fraction", None),
+    "acc_range": ("--acc-range", None),
+    "gyr_range": ("--gyr-range", _degs_to_rads),
+    "turns": ("--turns", None),
+    "partial": ("--partial", None),
+}
+
+
+def _option_defaults() -> dict[str, Any]:
+    """Option field -> default, over every registered method's options type (a field that several
+    types share has one default; ``tests/test_methods_contract.py`` checks it)."""
+    return {f: d for m in methods.REGISTRY.values() for f, d in m.options._field_defaults.items()}
+
+
+def _used_by(field: str) -> str:
+    """The registered methods whose options have ``field``, e.g. ``"nn and online-thesis"``."""
+    return " and ".join(m.name for m in methods.REGISTRY.values() if field in m.options._fields)
+
+
+def _add_calibrate(p: argparse.ArgumentParser) -> None:
+    nn = NNOptions._field_defaults
+    p.add_argument("recording", metavar="RECORDING", help="recording (.npz or .csv; see CONVENTIONS.md)")
+    p.add_argument(
+        "--method",
+        required=True,
+        choices=methods.names(),
+        help="calibration method (`jaxcal methods` says what each needs)",
+    )
+    p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
+    p.add_argument("--seed", type=_seed, default=nn["seed"],
+                   help=f"PRNG seed in [0, 2**32 - 1] ({_used_by('seed')}; default {nn['seed']})")
+    p.add_argument("--sensors", type=_sensors, default=nn["sensors"],
+                   help=f"calibrate only these: acc, gyr or acc,gyr ({_used_by('sensors')}; default all)")
+    g = p.add_argument_group("nn options")
+    g.add_argument("--widths", type=_int_tuple, default=nn["widths"],
+                   help=f"hidden widths, e.g. 7500 or 5,10,5 (default {','.join(map(str, nn['widths']))})")
+    g.add_argument("--slope", type=_real(0.0, 1.0, open_low=False), default=nn["slope"],
+                   help=f"leaky-ReLU slope in [0, 1] (default {nn['slope']:g})")
+    g.add_argument("--lr", dest="learning_rate", metavar="LR", type=_real(0.0, 10.0), default=nn["learning_rate"],
+                   help=f"Adam learning rate (default {nn['learning_rate']:g})")
+    g.add_argument("--patience", type=_count(1, 10**9), default=nn["patience"],
+                   help=f"early-stopping patience in epochs (default {nn['patience']})")
+    g.add_argument("--max-epochs", type=_count(1, 10**9), default=nn["max_epochs"],
+                   help=f"maximum full-batch epochs (default {nn['max_epochs']})")
+    g.add_argument(
+        "--val-fraction",
+        type=_real(0.0, 1.0),
+        default=nn["val_fraction"],
+        help=f"share of labelled samples held out for early stopping, whole sequences if `seq` is given "
+        f"(default {nn['val_fraction']:g})",
+    )
+    g.add_argument("--acc-range", type=_real(0.0, 1e6), default=nn["acc_range"],
+                   help=f"accelerometer full scale in g for eq. 3.6 bounds (default {nn['acc_range']:g})")
+    g.add_argument("--gyr-range", type=_real(0.0, 1e6), default=GYR_RANGE_DEGS,
+                   help=f"gyroscope full scale in deg/s for eq. 3.6 bounds (default {GYR_RANGE_DEGS:g})")
+    mp = MultiposOptions._field_defaults
+    m = p.add_argument_group("multipos options")
+    m.add_argument(
+        "--turns", type=_turns, default=mp["turns"], metavar="T0-T1[,T0-T1...]",
+        help="whole turns about the vertical (e.g. turned flat on a table), start-end in seconds; their axes "
+        "are read from the accelerometer at the rests around them (no labels)",
+    )
+    m.add_argument(
+        "--partial", action="store_const", const=True, default=mp["partial"],
+        help="when the poses do not determine every combination, fit only those they do and leave the rest "
+        "as recorded (recordings in g and rad/s; an undetermined gyroscope is not calibrated) instead of refusing",
+    )
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def _method_options(args: argparse.Namespace) -> Any:
+    """The options of ``args.method`` from the flags; a flag set away from its default that the
+    method does not take is a usage error naming the flag and the methods that take it."""
+    kind = methods.get(args.method).options
+    values = {f: (conv(getattr(args, f)) if conv else getattr(args, f)) for f, (_, conv) in OPTION_FLAGS.items()}
+    defaults = _option_defaults()
+    for f, v in values.items():
+        if f not in kind._fields and f in defaults and v != defaults[f]:
+            raise UsageError(f"{OPTION_FLAGS[f][0]} is an option of {_used_by(f)}, not of {args.method}")
+    return kind(**{f: v for f, v in values.items() if f in kind._fields})
+
+
+def _run_calibrate(args: argparse.Namespace) -> int:
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")
     _check_out_file(args.out, [args.recording])
     if not 0.0 < args.val_fraction < 1.0:
         raise UsageError(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
-    if args.method != "multipos" and (args.turns is not None or args.partial):
-        raise UsageError(f"--turns and --partial are multipos options, not {args.method}'s")
-    get_method(args.method)  # unavailable method: fail before reading data
+    options = _method_options(args)  # before reading data
     rec = load_recording(args.recording)
     log = _progress(args)
-    options = FitOptions(
-        seed=args.seed,
-        sensors=args.sensors,
-        widths=args.widths,
-        slope=args.slope,
-        learning_rate=args.lr,
-        patience=args.patience,
-        max_epochs=args.max_epochs,
-        val_fraction=args.val_fraction,
-        acc_range=args.acc_range,
-        gyr_range=args.gyr_range * math.pi / 180.0,
-        log=log,
-        extra=({} if args.turns is None else {"turns": args.turns}) | ({"partial": True} if args.partial else {}),
-    )
     t0 = time.perf_counter()
     try:
-        model = fit_model(args.method, rec, options)
+        model = methods.fit(args.method, rec, options, log=log)
     except ModelError as e:  # the recording does not suit the method: say which file
         raise ModelError(f"{args.recording}: {e}") from None
     save_model(model, args.out)
@@ -341,8 +393,6 @@ def _add_apply(p: argparse.ArgumentParser) -> None:
 
 
 def _run_apply(args: argparse.Namespace) -> int:
-    from jaxcal.model_io import ModelError, load_model
-
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
     _check_out_file(args.out, [args.model, args.recording])
@@ -366,74 +416,6 @@ def _run_apply(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------- simulate
 
 
-def _dataset2_recordings(seed: int, config: Any, labels: bool) -> tuple[dict[str, Recording], dict[str, Any]]:
-    """Dataset 2 as recordings: train/val (sequences concatenated), test_acc, test_gyr; + truth."""
-    import jax
-
-    from jaxcal.simulate import dataset2
-
-    ds = jax.jit(dataset2, static_argnums=1)(jax.random.PRNGKey(seed), config)  # one compile (cached)
-    fs = float(config.fs)
-    spec = dict(
-        fs=fs,
-        acc_lsb_per_g=np.asarray(config.acc_lsb_per_g, np.float64),
-        acc_bias_lsb=np.asarray(0.0),
-        gyr_lsb_per_rads=np.asarray(config.gyr_lsb_per_rads, np.float64),
-        gyr_bias_lsb=np.asarray(0.0),
-    )
-
-    def raw(a: Any) -> np.ndarray:
-        a = np.asarray(a)
-        return a.astype(np.int32) if config.round_counts else a.astype(np.float64)
-
-    def sequences(s: Any) -> Recording:
-        m, n = s.acc.shape[:2]
-        seq = np.repeat(np.arange(m), n)
-        static = np.zeros((m, n), dtype=bool)
-        static[:, 0] = static[:, -1] = True  # eq. 4.4: the rate is zero at both ends
-        kw: dict[str, Any] = {}
-        if labels:
-            kw = dict(
-                acc_ref=np.asarray(s.acc_true, np.float64).reshape(-1, 3),
-                gyr_ref=np.asarray(s.gyr_true, np.float64).reshape(-1, 3),
-            )
-        return Recording(
-            t=np.arange(m * n) / fs,
-            acc=raw(s.acc).reshape(-1, 3),
-            gyr=raw(s.gyr).reshape(-1, 3),
-            seq=seq,
-            static=static.reshape(-1),
-            **kw,
-            **spec,
-        )
-
-    n_acc = ds.test_acc.raw.shape[0]
-    test_acc = Recording(
-        t=np.arange(n_acc) / fs,
-        acc=raw(ds.test_acc.raw),
-        acc_ref=np.asarray(ds.test_acc.true, np.float64),
-        static=np.ones(n_acc, dtype=bool),
-        **spec,
-    )
-    n_gyr = ds.test_gyr.raw.shape[0]
-    test_gyr = Recording(
-        t=np.linspace(0.0, 2.0 * np.pi, n_gyr),  # eq. 4.7: w(t) = 0.35 sin(t), t in [0, 2 pi]
-        gyr=raw(ds.test_gyr.raw),
-        gyr_ref=np.asarray(ds.test_gyr.true, np.float64),
-        **(spec | {"fs": None}),  # its t does not step at the sequences' fs
-    )
-    truth = {
-        "dataset": "dataset2",
-        "seed": seed,
-        "config": {k: (float(v) if isinstance(v, float) else v) for k, v in config._asdict().items()},
-        "acc_true": {"s": np.asarray(ds.acc_true_model.s).tolist(), "b": np.asarray(ds.acc_true_model.b).tolist()},
-        "gyr_true": {"s": np.asarray(ds.gyr_true_model.s).tolist(), "b": np.asarray(ds.gyr_true_model.b).tolist()},
-        "model": "y = round(s * x + b) per axis (LSB), x in g / rad/s (thesis eq. 4.6)",
-    }
-    recs = {"train": sequences(ds.train), "val": sequences(ds.val), "test_acc": test_acc, "test_gyr": test_gyr}
-    return recs, truth
-
-
 def _add_simulate(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="dataset", metavar="DATASET", parser_class=_Parser)
     sub.required = True
@@ -454,7 +436,7 @@ def _add_simulate(p: argparse.ArgumentParser) -> None:
         "dataset1",
         help="thesis Dataset 1 surrogate (section 3.4): labelled static orientations",
         description="Write DIR/train, DIR/val, DIR/test recordings (static samples with acc_ref labels) and "
-        "DIR/truth.json, from jaxcal.simulate.dataset1 (if this build has it).",
+        "DIR/truth.json, from jaxcal.simulate.dataset1.",
     )
     d1.add_argument("--out", required=True, metavar="DIR", help="output directory (created if needed)")
     d1.add_argument("--seed", type=_seed, default=0, help="PRNG seed in [0, 2**32 - 1] (default 0)")
@@ -472,55 +454,15 @@ def _write_all(d: Path, recs: dict[str, Recording], truth: dict[str, Any], fmt: 
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
-    if args.dataset == "dataset2":
-        from jaxcal.simulate import Dataset2Config
-
-        kw = {name: getattr(args, name) for name in ("n_train", "n_val") if getattr(args, name) is not None}
-        with _output_dir(args.out) as d:
-            recs, truth = _dataset2_recordings(args.seed, Dataset2Config(**kw), args.labels)
-            names = _write_all(d, recs, truth, args.format)
-    else:
-        try:
-            mod = importlib.import_module("jaxcal.simulate.dataset1")
-        except ImportError:
-            raise UsageError("dataset 'dataset1' is not available in this build") from None
-        if not hasattr(mod, "dataset1"):
-            raise UsageError("dataset 'dataset1' is not available in this build")
-        with _output_dir(args.out) as d:
-            recs, truth = _dataset1_recordings(mod, args.seed)
-            names = _write_all(d, recs, truth, args.format)
+    with _output_dir(args.out) as d:
+        if args.dataset == "dataset2":
+            kw = {name: getattr(args, name) for name in ("n_train", "n_val") if getattr(args, name) is not None}
+            recs, truth = dataset2_recordings(args.seed, Dataset2Config(**kw), args.labels)
+        else:
+            recs, truth = dataset1_recordings(args.seed)
+        names = _write_all(d, recs, truth, args.format)
     print(f"{PROG}: wrote {', '.join(names)} and truth.json to {args.out}", file=sys.stderr)
     return 0
-
-
-def _dataset1_recordings(mod: Any, seed: int) -> tuple[dict[str, Recording], dict[str, Any]]:
-    """Dataset 1 surrogate as recordings: ``train``/``val``/``test`` static poses.
-
-    Each split holds ``acc`` (LSB), ``acc_ref`` (the robot's labels, g), ``static`` (all true)
-    and the extra key ``acc_true`` (the exact specific force, for scoring); ``t`` is the pose
-    index in seconds (the poses are independent).
-    """
-    import jax
-    from flax import serialization
-
-    ds = mod.dataset1(jax.random.PRNGKey(seed))
-    spec = ds.spec
-    recs: dict[str, Recording] = {}
-    for split in ("train", "val", "test"):
-        part = getattr(ds, split)
-        n = part.acc.shape[0]
-        recs[split] = Recording(
-            t=np.arange(n, dtype=np.float64),
-            acc=np.asarray(part.acc, np.float64),
-            acc_ref=np.asarray(part.acc_ref, np.float64),
-            static=np.ones(n, dtype=bool),
-            acc_lsb_per_g=np.asarray(spec.s, np.float64),
-            acc_bias_lsb=np.asarray(spec.b, np.float64),
-            extra={"acc_true": np.asarray(part.acc_true, np.float64)},
-        )
-    model = jax.tree.map(lambda a: np.asarray(a).tolist(), serialization.to_state_dict(ds.model))
-    truth = {"dataset": "dataset1", "seed": seed, "model": model}
-    return recs, truth
 
 
 # ----------------------------------------------------------------------------- methods, version
@@ -531,11 +473,8 @@ def _add_methods(p: argparse.ArgumentParser) -> None:
 
 
 def _run_methods(args: argparse.Namespace) -> int:
-    from jaxcal.model_io import _REGISTRY, available_methods
-
-    for name, ok in available_methods().items():
-        desc = _REGISTRY[name].description if ok else "not available in this build"
-        print(f"{name:14s} {desc}")
+    for name, m in methods.REGISTRY.items():
+        print(f"{name:14s} {m.doc}")
     return 0
 
 
@@ -563,7 +502,7 @@ register_command(
     "simulate",
     Command("write simulated recordings (dataset2, dataset1)", _add_simulate, _run_simulate),
 )
-register_command("methods", Command("list calibration methods and whether this build has them", _add_methods, _run_methods))
+register_command("methods", Command("list the calibration methods", _add_methods, _run_methods))
 
 
 # ----------------------------------------------------------------------------- import, diagnose
@@ -600,22 +539,15 @@ def _add_import(p: argparse.ArgumentParser) -> None:
 
 
 def _run_import(args: argparse.Namespace) -> int:
-    try:
-        readers = importlib.import_module("jaxcal.readers")
-    except ImportError:
-        raise UsageError("command 'import' is not available in this build") from None
-    if not hasattr(readers, "read"):
-        raise UsageError("command 'import' is not available in this build")
     if not args.out.lower().endswith((".npz", ".csv")):
         raise UsageError(f"--out {args.out}: recordings are written as .npz or .csv")
     _check_out_file(args.out, args.files)
     names = {"fs": "fs", "acc_unit": "acc_unit", "gyr_unit": "gyr_unit", "time_unit": "time_unit",
              "columns": "columns", "units": "units", "skip_rows": "skip_rows"}
     options = {k: getattr(args, a) for a, k in names.items() if getattr(args, a) is not None}
-    reader_error = getattr(readers, "ReaderError", ValueError)
     try:
         rec = readers.read(args.format, args.files, **options)
-    except reader_error as e:
+    except readers.ReaderError as e:
         raise UsageError(str(e)) from None
     except TypeError as e:  # an option this format does not take
         given = ", ".join("--" + k.replace("_", "-") for k in options) or "none"
@@ -632,12 +564,8 @@ def _add_diagnose(p: argparse.ArgumentParser) -> None:
 
 
 def _run_diagnose(args: argparse.Namespace) -> int:
-    try:
-        diag = importlib.import_module("jaxcal.diagnose")
-    except ImportError:
-        raise UsageError("command 'diagnose' is not available in this build") from None
-    if not hasattr(diag, "diagnose_recording"):
-        raise UsageError("command 'diagnose' is not available in this build")
+    from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
+
     rec = load_recording(args.recording)
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
@@ -741,15 +669,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
     """The exceptions that mean bad input (exit status 2, one line): usage, recording, model and
-    (when this build has readers) reader errors."""
-    from jaxcal.model_io import ModelError
-
-    errors: tuple[type[BaseException], ...] = (UsageError, RecordingError, ModelError)
-    try:
-        errors += (importlib.import_module("jaxcal.readers").ReaderError,)
-    except (ImportError, AttributeError):
-        pass
-    return errors
+    reader errors."""
+    return (UsageError, RecordingError, ModelError, readers.ReaderError)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

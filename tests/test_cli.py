@@ -3,14 +3,16 @@
 from __future__ import annotations
 
 import json
+from typing import NamedTuple
 
 import jax
 import numpy as np
 import pytest
 
-from jaxcal import model_io
+from jaxcal import cli, methods
 from jaxcal.cli import main
-from jaxcal.model_io import CalibrationModel, FitOptions, Fitted, fit_model, load_model, register_method, save_model
+from jaxcal.methods import CalibrationModel, Fitted, Method
+from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import Recording, load_recording, save_recording
 from jaxcal.simulate import Dataset2Config, dataset2
 
@@ -112,34 +114,41 @@ def test_nn_runs_and_beats_spec_conversion(tmp_path, capsys):
     assert e_nn < 0.5 * e_spec, (e_nn, e_spec)
 
 
+class _SeedOptions(NamedTuple):
+    """Args:
+    seed: a number stored in the metadata."""
+
+    seed: int = 0
+
+
 def test_model_file_round_trip_and_registry(tmp_path):
     n = 50
     rng = np.random.default_rng(3)
     rec = Recording(t=np.arange(n) * 0.1, gyr=rng.normal(size=(n, 3)) * 100, gyr_ref=rng.normal(size=(n, 3)))
 
-    def fit_scale(r, options):  # a toy plug-in: per-axis least-squares scale, no bias
+    def fit_scale(r, options, log):  # a toy plug-in: per-axis least-squares scale, no bias
         y, x = np.asarray(r.gyr), np.asarray(r.gyr_ref)
         return Fitted(("gyr",), {"gyr": {"k": (x * y).sum(0) / (y * y).sum(0)}}, {"note": options.seed})
 
     def apply_scale(state, meta, r):
         return {"gyr_cal": np.asarray(r.gyr) * state["gyr"]["k"]}
 
-    register_method("toy-scale", fit_scale, apply_scale, needs_labels=True)
+    methods.register(Method("toy-scale", fit_scale, apply_scale, _SeedOptions, "per-axis scale"))
     try:
-        m = fit_model("toy-scale", rec, FitOptions(seed=5))
+        m = methods.fit("toy-scale", rec, _SeedOptions(seed=5))
         save_model(m, tmp_path / "toy.npz")
         m2 = load_model(tmp_path / "toy.npz")
         assert m2.method == "toy-scale" and m2.sensors == ("gyr",) and m2.meta["note"] == 5
         np.testing.assert_array_equal(m2.apply(rec)["gyr_cal"], m.apply(rec)["gyr_cal"])
         # the built-in linear model too: file round trip leaves apply unchanged
-        lin = fit_model("linear", rec.replace(gyr=rec.gyr_ref * 7500.0 + 12.0))
+        lin = methods.fit("linear", rec.replace(gyr=rec.gyr_ref * 7500.0 + 12.0))
         save_model(lin, tmp_path / "lin.npz")
         r_apply = rec.replace(gyr=rec.gyr_ref * 7500.0 + 12.0)
         np.testing.assert_array_equal(load_model(tmp_path / "lin.npz").apply(r_apply)["gyr_cal"],
                                       lin.apply(r_apply)["gyr_cal"])
         np.testing.assert_allclose(lin.apply(r_apply)["gyr_cal"], rec.gyr_ref, atol=1e-9)
     finally:
-        model_io._REGISTRY.pop("toy-scale")
+        methods.REGISTRY.pop("toy-scale")
 
 
 def _write_bad_model(path):
@@ -155,8 +164,8 @@ BAD_CASES = {
                               "needs reference labels"),
     "nn without labels": (["calibrate", "--method", "nn", "{d}/nolabels/val.npz", "--out", "{t}/m.npz"],
                           "acc_ref"),
-    "unavailable method": (["calibrate", "--method", "ghost", "{d}/train.npz", "--out", "{t}/m.npz"],
-                           "method 'ghost' is not available in this build"),
+    "another method's flag": (["calibrate", "--method", "linear", "{d}/train.npz", "--out", "{t}/m.npz",
+                               "--widths", "8"], "--widths is an option of nn, not of linear"),
     "unknown method": (["calibrate", "--method", "voodoo", "{d}/train.npz", "--out", "{t}/m.npz"], "invalid choice"),
     "missing --out": (["calibrate", "--method", "linear", "{d}/train.npz"], "--out"),
     "bad widths": (["calibrate", "--method", "nn", "{d}/train.npz", "--out", "{t}/m.npz", "--widths", "a,b"],
@@ -176,8 +185,7 @@ BAD_CASES = {
 
 
 @pytest.mark.parametrize("case", list(BAD_CASES))
-def test_bad_input_exits_2_with_one_line(sim, tmp_path, capsys, monkeypatch, case):
-    monkeypatch.setitem(model_io._LAZY, "ghost", lambda: None)
+def test_bad_input_exits_2_with_one_line(sim, tmp_path, capsys, case):
     (tmp_path / "junk.npz").write_bytes(b"PK\x03\x04 truncated")
     _write_bad_model(tmp_path / "alchemy.npz")
     lin = load_model(sim / "lin.npz")
@@ -204,14 +212,14 @@ def test_help_version_and_methods(capsys):
     assert code == 0 and "--method" in out and "--widths" in out and "--seed" in out
     code, out, _ = run(capsys, "methods")
     assert code == 0 and out.split("\n")[0].startswith("linear")
+    assert [ln.split()[0] for ln in out.strip().split("\n")] == list(methods.REGISTRY)
 
 
-def _method_available(name: str) -> bool:
-    try:
-        model_io.get_method(name)
-        return True
-    except model_io.ModelError:
-        return False
+@pytest.mark.parametrize("name", list(methods.REGISTRY))
+def test_flag_defaults_are_the_options_types_defaults(name):
+    """One source of truth: ``calibrate`` without method flags gives the method's default options."""
+    args = cli.build_parser().parse_args(["calibrate", "--method", name, "r.npz", "--out", "m.npz"])
+    assert cli._method_options(args) == methods.REGISTRY[name].options()
 
 
 def _test_errors(sim_dir, model_path, tmp_path, capsys) -> dict[str, tuple[float, float]]:
@@ -229,7 +237,6 @@ def _test_errors(sim_dir, model_path, tmp_path, capsys) -> dict[str, tuple[float
     return out
 
 
-@pytest.mark.skipif(not _method_available("online"), reason="jaxcal.online not in this build")
 def test_online_without_labels_beats_spec(sim, tmp_path, capsys):
     # 12 unlabelled rotation sequences (seq ids + datasheet metadata only).
     code, _, err = run(capsys, "calibrate", "--method", "online", sim / "nolabels" / "train.npz",
@@ -242,7 +249,6 @@ def test_online_without_labels_beats_spec(sim, tmp_path, capsys):
         assert e_model < 0.1 * e_spec, (s, e_model, e_spec)
 
 
-@pytest.mark.skipif(not _method_available("online-thesis"), reason="jaxcal.online_thesis not in this build")
 def test_online_thesis_cli_equals_library(sim, tmp_path, capsys):
     """The CLI runs exactly the library's algorithm (same key, data, spec) and applies it the same.
 
@@ -268,7 +274,6 @@ def test_online_thesis_cli_equals_library(sim, tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not _method_available("multipos"), reason="jaxcal.multipos not in this build")
 def test_multipos_through_cli_on_xsens(tmp_path, capsys):
     from pathlib import Path
 
@@ -288,7 +293,6 @@ def test_multipos_through_cli_on_xsens(tmp_path, capsys):
     assert abs(norm.mean() - 1.0) < 5e-3
 
 
-@pytest.mark.skipif(not _method_available("multipos"), reason="jaxcal.multipos not in this build")
 def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
     """imucal's Ferraris session through the CLI, no labels: with its three turns given only as
     time ranges (``--turns``), the calibrated gyro closes every 360 deg turn to < 0.5 deg; without
@@ -300,7 +304,7 @@ def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
     import jax.numpy as jnp
 
     from jaxcal import multipos as mp
-    from jaxcal.model_io import load_model
+    from jaxcal.sensor import LinearCal
 
     d = Path(__file__).resolve().parents[1] / "data" / "imucal_ferraris_example"
     rec = load_recording(d / "session.npz")
@@ -313,8 +317,11 @@ def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
         code, _, err = run(capsys, "calibrate", "--method", "multipos", d / "session.npz", "--out", tmp_path / f"{name}.npz", *extra)
         assert code == 0, err
         st = load_model(tmp_path / f"{name}.npz").state
-        cal = {s: mp.InverseAffine(jnp.asarray(np.linalg.inv(st[s]["S"]), jnp.float64), jnp.asarray(st[s]["b"], jnp.float64)) for s in ("acc", "gyr")}
+        # Local on purpose: the CLI runs above in its default precision (x64 off); only this
+        # scoring of the written model is float64.
         with jax.enable_x64(True):
+            cal = {s: LinearCal(jnp.asarray(np.linalg.inv(st[s]["S"]), jnp.float64), jnp.asarray(st[s]["b"], jnp.float64))
+                   for s in ("acc", "gyr")}
             e = mp.known_rotation_errors(cal["gyr"], jnp.zeros((3, 3)), cal["acc"], jax.tree_util.tree_map(jnp.asarray, known))
         worst[name] = float(np.degrees(np.max(np.asarray(e))))
     assert worst["turns"] < 0.5 and worst["none"] > 2.0, worst
@@ -322,7 +329,6 @@ def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
     assert code == 2 and "START < END" in err
 
 
-@pytest.mark.skipif(not _method_available("multipos"), reason="jaxcal.multipos not in this build")
 def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
     """x-io's Fusion recording (hand-held) is still only flat or tilted < 90 deg: multipos exits 2
     and says what is undetermined, writing nothing; with --partial it writes an accelerometer-only
@@ -339,7 +345,7 @@ def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
     model = load_model(tmp_path / "mp.npz")
     assert model.sensors == ("acc",) and "gyr" in model.meta["fit_quality"]["partial"], model.meta
     code, _, err = run(capsys, "calibrate", "--method", "linear", "--partial", rec_path, "--out", tmp_path / "x.npz")
-    assert code == 2 and "multipos options" in err, err
+    assert code == 2 and "--partial is an option of multipos, not of linear" in err, err
 
 
 def test_import_command(tmp_path, capsys):

@@ -1,0 +1,181 @@
+"""Method ``nn``: the thesis's MLP sensor model per sensor (section 3.3), fitted to reference
+labels with :func:`jaxcal.nn.fit_nn` (Adam, early stopping on a held-out share) and applied with
+:func:`jaxcal.nn.nn_calibrate` after the eq. 3.6-3.7 input normalisation."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS, PHYS_UNIT, SENSORS
+from jaxcal.methods.base import REF_KEY, Fitted, Log, Method, ModelError, holdout_mask, labelled_sensors, recording_spec, units
+from jaxcal.nn import MLP, NNCalibration, fit_nn, nn_calibrate
+from jaxcal.normalise import Bounds, bounds_from_spec
+from jaxcal.recording import Recording
+from jaxcal.train import TrainConfig
+
+__all__ = ["METHOD", "NN_MEMORY_LIMIT", "NNOptions", "apply", "fit"]
+
+
+class NNOptions(NamedTuple):
+    """Options of ``nn`` (static: plain Python values). The defaults (1e-2, patience 1000, at most
+    10000 full-batch epochs) were picked on the Dataset 1 surrogate, where 1e-3 with patience 200
+    stopped long before the network beat the linear model.
+
+    Args:
+        seed: PRNG seed of the initial weights.
+        sensors: sensors to calibrate (subset of ``("acc", "gyr")``); ``None``: every labelled one.
+        widths: hidden layer widths (thesis offline network: one layer of 7500).
+        slope: leaky-ReLU slope (thesis: 0.1).
+        learning_rate: Adam step size.
+        patience: early-stopping patience (epochs without validation improvement).
+        max_epochs: cap on full-batch epochs.
+        val_fraction: share of labelled samples held out (deterministically) for early stopping.
+        acc_range: accelerometer full scale (g) for the eq. 3.6 bounds from the datasheet values.
+        gyr_range: gyroscope full scale (rad/s) for the eq. 3.6 bounds.
+    """
+
+    seed: int = 0
+    sensors: tuple[str, ...] | None = None
+    widths: tuple[int, ...] = (7500,)
+    slope: float = 0.1
+    learning_rate: float = 1e-2
+    patience: int = 1000
+    max_epochs: int = 10000
+    val_fraction: float = 0.15
+    acc_range: float = ACC_RANGE_G
+    gyr_range: float = GYR_RANGE_RADS
+
+
+NN_MEMORY_LIMIT = 16 * 2**30  # bytes: a full-batch fit that needs more is refused before it starts
+
+
+def _check_nn_size(widths: tuple[int, ...], n: int) -> None:
+    """Refuse network sizes whose full-batch fit could not fit in memory (float32 activations and
+    their gradients for ``n`` samples, weights with Adam's two moments), before any allocation."""
+    if not widths or min(widths) < 1:
+        raise ModelError(f"method 'nn': hidden widths must be positive integers, got {list(widths)}")
+    sizes = (3, *widths, 3)
+    params = sum((a + 1) * b for a, b in zip(sizes[:-1], sizes[1:]))
+    need = 4 * (3 * n * sum(widths) + 4 * params)
+    if need > NN_MEMORY_LIMIT:
+        raise ModelError(f"method 'nn': widths {list(widths)} on {n} samples need about {need / 2**30:.3g} GiB "
+                         f"(limit {NN_MEMORY_LIMIT / 2**30:.0f} GiB); use smaller --widths (the thesis uses 7500)")
+
+
+def _nn_bounds(rec: Recording, sensor: str, y: np.ndarray, options: NNOptions) -> tuple[Bounds, str]:
+    """Eq. 3.6 input bounds: from the datasheet values and the full scale, else the data range +- 10 %."""
+    spec = recording_spec(rec, sensor)
+    if spec is not None:
+        rng = options.acc_range if sensor == "acc" else options.gyr_range
+        return bounds_from_spec(spec, rng), f"spec, range {rng:g} {PHYS_UNIT[sensor]}"
+    lo, hi = y.min(axis=0), y.max(axis=0)
+    pad = 0.1 * np.maximum(hi - lo, 1.0)
+    return Bounds(jnp.asarray(lo - pad, jnp.float32), jnp.asarray(hi + pad, jnp.float32)), "data range +- 10 %"
+
+
+def fit(rec: Recording, options: NNOptions, log: Log) -> Fitted:
+    """Train one MLP per labelled sensor (full batch, early stopping on the :func:`holdout_mask` share).
+
+    Args:
+        rec: a recording with ``acc``/``acc_ref`` and/or ``gyr``/``gyr_ref``.
+        options: :class:`NNOptions`.
+        log: progress sink.
+    """
+    sensors = labelled_sensors(rec, options.sensors, "nn")
+    val = holdout_mask(rec, options.val_fraction)
+    if not val.any():
+        raise ModelError("method 'nn' needs at least 2 labelled samples (training + validation)")
+    widths = tuple(int(w) for w in options.widths)
+    _check_nn_size(widths, rec.n)
+    mlp = MLP(widths=widths, out_dim=3, slope=float(options.slope))
+    config = TrainConfig(learning_rate=options.learning_rate, patience=options.patience, min_delta=0.0)
+    max_epochs = int(options.max_epochs)
+
+    @jax.jit
+    def train(key, bounds, y_tr, x_tr, y_va, x_va):
+        w_tr = jnp.ones(y_tr.shape[0], jnp.float32)
+        return fit_nn(key, mlp, bounds, (y_tr, x_tr, w_tr), (y_va, x_va), config, max_epochs)
+
+    state: dict[str, Any] = {}
+    meta: dict[str, Any] = {
+        "units": units(rec, sensors),
+        "widths": list(widths),
+        "slope": float(options.slope),
+        "learning_rate": float(options.learning_rate),
+        "patience": int(options.patience),
+        "max_epochs": max_epochs,
+        "val_fraction": float(options.val_fraction),
+        "seed": int(options.seed),
+        "n_train": int((~val).sum()),
+        "n_val": int(val.sum()),
+        "bounds_from": {},
+        "epochs": {},
+        "best_epoch": {},
+        "val_rms": {},
+        "fit_seconds": {},
+    }
+    keys = jax.random.split(jax.random.PRNGKey(options.seed), len(SENSORS))
+    for s in sensors:
+        y = np.asarray(getattr(rec, s), np.float64)
+        x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
+        bounds, how = _nn_bounds(rec, s, y, options)
+        log(f"fitting nn ({s}) on {int((~val).sum())} samples ({int(val.sum())} held out for early stopping), "
+            f"widths {widths}, up to {max_epochs} epochs ...")
+        t0 = time.perf_counter()
+        cal, res = train(
+            keys[SENSORS.index(s)],
+            bounds,
+            jnp.asarray(y[~val], jnp.float32),
+            jnp.asarray(x[~val], jnp.float32),
+            jnp.asarray(y[val], jnp.float32),
+            jnp.asarray(x[val], jnp.float32),
+        )
+        jax.block_until_ready(cal)
+        dt = time.perf_counter() - t0
+        best_val = float(res.best_val)
+        if not math.isfinite(best_val):
+            raise ModelError(f"nn fit of '{s}' diverged (non-finite validation loss); try a smaller --lr")
+        state[s] = cal
+        meta["bounds_from"][s] = how
+        meta["epochs"][s] = int(res.epochs)
+        meta["best_epoch"][s] = int(res.best_epoch)
+        meta["val_rms"][s] = math.sqrt(3.0 * best_val)  # weighted_mse averages over the 3 axes
+        meta["fit_seconds"][s] = dt
+        log(f"fitting nn ({s}) ... done in {dt:.1f} s: {int(res.epochs)} epochs, best at {int(res.best_epoch)}, "
+            f"validation rms {meta['val_rms'][s]:.3g} {PHYS_UNIT[s]}")
+    return Fitted(sensors, state, meta)
+
+
+def _nn_state(p: Mapping[str, Any]) -> NNCalibration:
+    """A stored ``{"params": ..., "bounds": {"lo", "hi"}}`` as an :class:`~jaxcal.nn.NNCalibration`."""
+    params = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), dict(p["params"]))
+    return NNCalibration(params, Bounds(*(jnp.asarray(p["bounds"][k]) for k in Bounds._fields)))
+
+
+def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> dict[str, np.ndarray]:
+    """Calibrate with the stored networks (eq. 3.7 normalisation, then the MLP; float32).
+
+    Args:
+        state: ``sensor -> {"params", "bounds"}``.
+        meta: the fit's metadata (``widths``, ``slope`` rebuild the network).
+        rec: the recording to calibrate.
+    """
+    mlp = MLP(widths=tuple(int(w) for w in meta["widths"]), out_dim=3, slope=float(meta["slope"]))
+    out = {}
+    for s, p in state.items():
+        y = getattr(rec, s)
+        if y is None:
+            continue
+        cal = _nn_state(p)
+        out[f"{s}_cal"] = np.asarray(jax.jit(lambda c, v: nn_calibrate(mlp, c, v))(cal, jnp.asarray(y, jnp.float32)))
+    return out
+
+
+METHOD = Method("nn", fit, apply, NNOptions, "MLP sensor model per sensor (thesis section 3.3); needs acc_ref/gyr_ref")
