@@ -1,0 +1,20 @@
+"""Evaluation of calibrations on real recordings: library code the experiments only compose.
+
+- :mod:`~jaxcal.eval.scores`: scores of a :class:`~jaxcal.sensor.LinearCal` pair on static poses
+  (``| |f| - 1 g |``) and on the motions between them (carried-gravity angle), in-sample and
+  leave-poses-out, as summary rows; paired comparison of rows with a peer's.
+- :mod:`~jaxcal.eval.heldout`: held-out fold runners: ``online`` on pose folds, multipos and fixed
+  calibrations on a time split of a continuous session (fair to peers that need whole sections).
+- :mod:`~jaxcal.eval.checks`: independent checks: rotation carried by the integrated gyro between two
+  rests (the 90 deg turn of a rot90x recording, the return to the start pose of a hand-held one).
+- :mod:`~jaxcal.eval.mocap`: a recording against its motion capture (``diagnose``'s held-out RMS beside
+  the recording as its maker calibrated it).
+- :mod:`~jaxcal.eval.peers`: peers' and published calibrations converted to ``LinearCal``.
+
+No I/O: every function takes arrays (or a :class:`~jaxcal.recording.Recording`) and returns arrays
+or plain dicts.
+"""
+
+from jaxcal.eval import checks, heldout, mocap, peers, scores
+
+__all__ = ["checks", "heldout", "mocap", "peers", "scores"]
