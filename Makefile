@@ -16,7 +16,7 @@ export MPLBACKEND := Agg
 # numpy's BLAS threads only contend with XLA's on 2 cores (small products slow down 1000x under load).
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: install lock run run-full test test-all test-latest margins clean
+.PHONY: install lock run run-full lint test test-all test-latest margins clean
 
 install: $(STAMP)
 
@@ -43,7 +43,11 @@ run: $(STAMP)
 run-full: $(STAMP)
 	$(BIN)/python -m experiments.run_all
 
-test: $(STAMP)
+## Lint (pyflakes, pycodestyle errors, import order; config in pyproject.toml): a second of work, run first by `make test`.
+lint: $(STAMP)
+	$(BIN)/ruff check jaxcal experiments tests benchmarks data/convert.py
+
+test: $(STAMP) lint
 	$(BIN)/python -m pytest $(PYTEST_ARGS)
 
 test-all: $(STAMP)

@@ -15,7 +15,15 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Float
+
+from jaxcal.arrays import Array
+
+__all__ = [
+    "PairedComparison",
+    "sign_test_p",
+    "paired_comparison",
+]
 
 
 class PairedComparison(NamedTuple):
@@ -41,7 +49,12 @@ class PairedComparison(NamedTuple):
 
 
 def sign_test_p(wins: int, losses: int) -> float:
-    """Exact two-sided sign test (ties dropped): ``P(min count <= observed)`` under p = 1/2."""
+    """Exact two-sided sign test (ties dropped): ``P(min count <= observed)`` under p = 1/2.
+
+    Args:
+        wins: items where the method under test is better (``a < b``).
+        losses: items where it is worse (``a > b``); ties are not counted.
+    """
     n = wins + losses
     if n == 0:
         return 1.0
@@ -49,13 +62,13 @@ def sign_test_p(wins: int, losses: int) -> float:
     return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n)
 
 
-def _bootstrap(key: Array, a: Float[Array, "N"], b: Float[Array, "N"], n_boot: int) -> tuple[Array, Array]:
+def _bootstrap(key: Array, a: Float[Array, " N"], b: Float[Array, " N"], n_boot: int) -> tuple[Array, Array]:
     idx = jax.random.randint(key, (n_boot, a.shape[0]), 0, a.shape[0])
     ra, rb = a[idx], b[idx]
     return jnp.mean(ra - rb, axis=1), jnp.median(ra, axis=1) - jnp.median(rb, axis=1)
 
 
-def paired_comparison(a: Float[Array, "N"], b: Float[Array, "N"], key: Array, n_boot: int = 10000,
+def paired_comparison(a: Float[Array, " Na"], b: Float[Array, " Nb"], key: Array, n_boot: int = 10000,
                       level: float = 0.95) -> PairedComparison:
     """Compare per-item errors ``a`` and ``b`` (same items, same order; NaNs not allowed).
 

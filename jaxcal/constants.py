@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["G0", "ACC_RANGE_G", "GYR_RANGE_DEGS", "GYR_RANGE_RADS", "PHYS_UNIT", "SENSORS"]
+__all__ = ["G0", "ACC_RANGE_G", "GYR_RANGE_DEGS", "GYR_RANGE_RADS", "ACC_LSB_PER_G", "GYR_LSB_PER_DPS", "PHYS_UNIT", "SENSORS"]
 
 G0 = 9.80665
 """Standard gravity in m/s^2 per g (the conventions' ``g`` unit)."""
@@ -22,6 +22,13 @@ GYR_RANGE_DEGS = 250.0
 
 GYR_RANGE_RADS = GYR_RANGE_DEGS * math.pi / 180.0
 """The same gyroscope full scale in rad/s."""
+
+ACC_LSB_PER_G = 16384.0
+"""MPU-6050-class accelerometer sensitivity at +-2 g (datasheet PS-MPU-6000A rev 3.4), LSB per g:
+the thesis's sensors and the MPU-6050 recording."""
+
+GYR_LSB_PER_DPS = 131.0
+"""MPU-6050-class gyroscope sensitivity at +-250 deg/s (same datasheet), LSB per deg/s."""
 
 SENSORS = ("acc", "gyr")
 """The two sensors of an IMU recording, in the order every module uses."""

@@ -13,9 +13,16 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import optimistix as optx
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
 from jaxcal.sensor import Affine
+
+__all__ = [
+    "affine_residuals",
+    "fit_affine",
+    "fit_affine_closed_form",
+]
 
 
 def _design(x: Float[Array, "L 3"]) -> Float[Array, "L 4"]:
@@ -28,7 +35,12 @@ def _split(m: Float[Array, "3 4"]) -> Affine:
 
 
 def affine_residuals(m: Float[Array, "3 4"], data: tuple[Array, Array, Array]) -> Float[Array, "L 3"]:
-    """Weighted residuals ``sqrt(w_l) (y_l - M [x_l; 1])`` of eq. 3.2."""
+    """Weighted residuals ``sqrt(w_l) (y_l - M [x_l; 1])`` of eq. 3.2.
+
+    Args:
+        m: (3, 4) parameters ``M = [S | b]``.
+        data: ``(x (L, 3) labels, y (L, 3) outputs, w (L,) weights)``, optimistix's ``args``.
+    """
     x, y, w = data
     return jnp.sqrt(w)[:, None] * (y - _design(x) @ m.T)
 
@@ -36,7 +48,7 @@ def affine_residuals(m: Float[Array, "3 4"], data: tuple[Array, Array, Array]) -
 def fit_affine(
     x: Float[Array, "L 3"],
     y: Float[Array, "L 3"],
-    weights: Float[Array, "L"] | None = None,
+    weights: Float[Array, " L"] | None = None,
     *,
     rtol: float = 1e-10,
     atol: float = 1e-10,
@@ -48,6 +60,7 @@ def fit_affine(
         y: sensor output, e.g. ``acc`` in LSB.
         weights: optional non-negative per-sample weights (0 drops a sample; used to vmap over
             subsets of one padded dataset).
+        rtol, atol: relative and absolute convergence tolerances of the Gauss-Newton solver.
 
     Returns:
         The fitted :class:`~jaxcal.sensor.Affine` (``S`` in LSB/unit, ``b`` in LSB).
@@ -63,9 +76,15 @@ def fit_affine(
 
 
 def fit_affine_closed_form(
-    x: Float[Array, "L 3"], y: Float[Array, "L 3"], weights: Float[Array, "L"] | None = None
+    x: Float[Array, "L 3"], y: Float[Array, "L 3"], weights: Float[Array, " L"] | None = None
 ) -> Affine:
-    """Normal-equation solution of eq. 3.3, ``M = U W A^T (A W A^T)^{-1}``."""
+    """Normal-equation solution of eq. 3.3, ``M = U W A^T (A W A^T)^{-1}``.
+
+    Args:
+        x: (L, 3) reference (true) input, e.g. g.
+        y: (L, 3) sensor output, e.g. LSB.
+        weights: optional (L,) non-negative per-sample weights; None: all 1.
+    """
     a = _design(x)
     w = jnp.ones(x.shape[0], dtype=x.dtype) if weights is None else weights
     aw = a * w[:, None]

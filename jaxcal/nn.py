@@ -8,13 +8,15 @@ under ``jax.jit`` / ``lax.scan`` / ``vmap`` with no framework state.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
+from jaxcal.arrays import Array
 from jaxcal.metrics import mse
 from jaxcal.normalise import Bounds, normalise
 from jaxcal.train import TrainConfig, TrainResult, fit_full_batch
@@ -28,6 +30,9 @@ THESIS_LEAKY_SLOPE = 0.1
 
 class MLP(nn.Module):
     """Fully connected network ``3 -> widths... -> out_dim`` with leaky-ReLU hidden layers.
+
+    Static: a flax module definition is hashable and closed over by the fitters; changing a field
+    compiles anew.
 
     Attributes:
         widths: hidden layer widths, e.g. ``(7500,)`` or ``(5, 10, 5)``.
@@ -47,7 +52,13 @@ class MLP(nn.Module):
 
 
 def init_mlp(key: jax.Array, mlp: MLP, in_dim: int = 3) -> Params:
-    """Initial parameters (flax defaults: LeCun-normal kernels, zero biases)."""
+    """Initial parameters (flax defaults: LeCun-normal kernels, zero biases).
+
+    Args:
+        key: PRNG key of the initial weights.
+        mlp: the network definition (static).
+        in_dim: input size (3 for a tri-axis sensor).
+    """
     return mlp.init(key, jnp.zeros((1, in_dim)))["params"]
 
 
@@ -59,12 +70,24 @@ class NNCalibration(NamedTuple):
 
 
 def nn_calibrate(mlp: MLP, cal: NNCalibration, y: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """Apply a trained NN calibration to raw counts ``y`` (Fig. 3.3)."""
+    """Apply a trained NN calibration to raw counts ``y`` (Fig. 3.3).
+
+    Args:
+        mlp: the network definition the calibration was trained with (static).
+        cal: trained parameters and their eq. 3.6 bounds.
+        y: (..., 3) raw counts (LSB).
+    """
     return mlp.apply({"params": cal.params}, normalise(y, cal.bounds))
 
 
-def weighted_mse(pred: Float[Array, "L 3"], target: Float[Array, "L 3"], w: Float[Array, "L"]) -> Float[Array, ""]:
-    """Eq. 2.7 with per-sample weights (0 drops a sample); equals :func:`mse` for ``w = 1``."""
+def weighted_mse(pred: Float[Array, "L 3"], target: Float[Array, "L 3"], w: Float[Array, " L"]) -> Float[Array, ""]:
+    """Eq. 2.7 with per-sample weights (0 drops a sample); equals :func:`mse` for ``w = 1``.
+
+    Args:
+        pred: (L, 3) model outputs.
+        target: (L, 3) labels.
+        w: (L,) non-negative per-sample weights.
+    """
     return jnp.sum(w[:, None] * (pred - target) ** 2) / (3.0 * jnp.maximum(jnp.sum(w), 1e-12))
 
 

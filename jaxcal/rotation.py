@@ -15,7 +15,25 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Float
+
+from jaxcal.arrays import Array
+
+__all__ = [
+    "hat",
+    "vee",
+    "exp_so3",
+    "rotation_from_rate",
+    "quat_from_matrix",
+    "matrix_from_quat",
+    "log_so3",
+    "compose",
+    "total_rotation",
+    "propagate_specific_force",
+    "integrate_orientation",
+    "random_rotation",
+    "random_unit_vectors",
+]
 
 # Below this squared angle the Taylor series (error O(theta^6)) replaces the closed form.
 _SMALL_ANGLE_SQ = 1e-6
@@ -63,7 +81,12 @@ def exp_so3(v: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
 
 
 def rotation_from_rate(w: Float[Array, "... 3"], dt: float | Float[Array, ""]) -> Float[Array, "... 3 3"]:
-    """``R_n = R(w_n, dt) = Exp(w_n dt)``: thesis eq. 4.1-4.3."""
+    """``R_n = R(w_n, dt) = Exp(w_n dt)``: thesis eq. 4.1-4.3.
+
+    Args:
+        w: (..., 3) body rates (rad/s).
+        dt: sample period (s).
+    """
     return exp_so3(w * dt)
 
 
@@ -126,7 +149,12 @@ def compose(rs: Float[Array, "N 3 3"]) -> Float[Array, "3 3"]:
 
 
 def total_rotation(w: Float[Array, "N 3"], dt: float | Float[Array, ""]) -> Float[Array, "3 3"]:
-    """``R_tot = prod_n Exp(w_n dt)``: orientation change over a sequence of body rates."""
+    """``R_tot = prod_n Exp(w_n dt)``: orientation change over a sequence of body rates.
+
+    Args:
+        w: (N, 3) body rates (rad/s), in time order.
+        dt: sample period (s).
+    """
     return compose(rotation_from_rate(w, dt))
 
 
@@ -137,6 +165,11 @@ def propagate_specific_force(
 
     Returns ``[f_0, f_1, ..., f_N]``. This is the physical convention; the thesis's eq. 4.5
     applies ``R_n`` instead of ``R_n^T``.
+
+    Args:
+        f0: (3,) body-frame specific force at the start (g).
+        w: (N, 3) body rates (rad/s).
+        dt: sample period (s).
     """
     def step(f, r):
         f_next = r.T @ f
@@ -149,7 +182,13 @@ def propagate_specific_force(
 def integrate_orientation(
     r0: Float[Array, "3 3"], w: Float[Array, "N 3"], dt: float | Float[Array, ""]
 ) -> Float[Array, "N+1 3 3"]:
-    """Orientation sequence ``R_{n+1} = R_n Exp(w_n dt)`` from ``R_0`` (body to world)."""
+    """Orientation sequence ``R_{n+1} = R_n Exp(w_n dt)`` from ``R_0`` (body to world).
+
+    Args:
+        r0: (3, 3) initial orientation, body to world.
+        w: (N, 3) body rates (rad/s).
+        dt: sample period (s).
+    """
     def step(r, dr):
         r_next = r @ dr
         return r_next, r_next
@@ -159,12 +198,22 @@ def integrate_orientation(
 
 
 def random_rotation(key: jax.Array, shape: tuple[int, ...] = ()) -> Float[Array, "... 3 3"]:
-    """Rotations uniform on SO(3) (normalised Gaussian quaternions)."""
+    """Rotations uniform on SO(3) (normalised Gaussian quaternions).
+
+    Args:
+        key: PRNG key.
+        shape: batch shape of the output (static: it sets the shape).
+    """
     q = jax.random.normal(key, shape + (4,))
     return matrix_from_quat(q)
 
 
 def random_unit_vectors(key: jax.Array, n: int) -> Float[Array, "n 3"]:
-    """``n`` directions uniform on the unit sphere."""
+    """``n`` directions uniform on the unit sphere.
+
+    Args:
+        key: PRNG key.
+        n: number of directions (static: it sets the shape).
+    """
     v = jax.random.normal(key, (n, 3))
     return v / jnp.linalg.norm(v, axis=-1, keepdims=True)

@@ -19,7 +19,22 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Float
+
+from jaxcal.arrays import Array
+
+__all__ = [
+    "Diag",
+    "Affine",
+    "LinearCal",
+    "diag_forward",
+    "diag_inverse",
+    "affine_forward",
+    "affine_inverse",
+    "affine_from_diag",
+    "spec_diag",
+    "spec_convert",
+]
 
 
 class Diag(NamedTuple):
@@ -72,22 +87,42 @@ class LinearCal(NamedTuple):
 
 
 def diag_forward(p: Diag, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """Sensor output of the diagonal model (eq. 4.6, before rounding)."""
+    """Sensor output of the diagonal model (eq. 4.6, before rounding).
+
+    Args:
+        p: diagonal model (``s`` LSB per unit, ``b`` LSB).
+        x: (..., 3) true quantity (g or rad/s).
+    """
     return p.s * x + p.b
 
 
 def diag_inverse(p: Diag, y: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """Calibrate with the diagonal model: ``x = (y - b) / s`` (eq. 4.8 with spec values)."""
+    """Calibrate with the diagonal model: ``x = (y - b) / s`` (eq. 4.8 with spec values).
+
+    Args:
+        p: diagonal model (``s`` LSB per unit, ``b`` LSB).
+        y: (..., 3) sensor outputs (LSB).
+    """
     return (y - p.b) / p.s
 
 
 def affine_forward(p: Affine, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """Sensor output of the affine model ``y = S x + b`` (eq. 3.1)."""
+    """Sensor output of the affine model ``y = S x + b`` (eq. 3.1).
+
+    Args:
+        p: affine model (``S`` LSB per unit, ``b`` LSB).
+        x: (..., 3) true quantity (g or rad/s).
+    """
     return x @ p.S.T + p.b
 
 
 def affine_inverse(p: Affine, y: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
-    """Calibrate with the affine model: ``x = S^{-1} (y - b)`` (eq. 3.5)."""
+    """Calibrate with the affine model: ``x = S^{-1} (y - b)`` (eq. 3.5).
+
+    Args:
+        p: affine model (``S`` LSB per unit, ``b`` LSB).
+        y: (..., 3) sensor outputs (LSB).
+    """
     s_b = jnp.broadcast_to(p.S, y.shape[:-1] + (3, 3))
     return jnp.linalg.solve(s_b, (y - p.b)[..., None])[..., 0]
 
@@ -97,13 +132,24 @@ def affine_from_diag(p: Diag) -> Affine:
     return Affine(S=jnp.diag(p.s), b=p.b)
 
 
-def spec_diag(lsb_per_unit: float | Float[Array, "3"], bias_lsb: float | Float[Array, "3"] = 0.0) -> Diag:
-    """Datasheet ("spec") model: nominal scale (LSB per g or per rad/s) and bias (LSB)."""
+def spec_diag(lsb_per_unit: float | Float[Array, ""] | Float[Array, "3"],
+              bias_lsb: float | Float[Array, ""] | Float[Array, "3"] = 0.0) -> Diag:
+    """Datasheet ("spec") model: nominal scale (LSB per g or per rad/s) and bias (LSB).
+
+    Args:
+        lsb_per_unit: nominal sensitivity, scalar or per axis (LSB per g or per rad/s).
+        bias_lsb: nominal bias, scalar or per axis (LSB).
+    """
     s = jnp.broadcast_to(jnp.asarray(lsb_per_unit, dtype=jnp.float32), (3,))
     b = jnp.broadcast_to(jnp.asarray(bias_lsb, dtype=jnp.float32), (3,))
     return Diag(s=s, b=b)
 
 
 def spec_convert(y: Float[Array, "... 3"], spec: Diag) -> Float[Array, "... 3"]:
-    """Spec conversion of raw counts to physical units, thesis eq. 4.8."""
+    """Spec conversion of raw counts to physical units, thesis eq. 4.8.
+
+    Args:
+        y: (..., 3) raw counts (LSB).
+        spec: datasheet model (:func:`spec_diag`).
+    """
     return diag_inverse(spec, y)

@@ -15,12 +15,25 @@ and is plain numpy. Intervals are ``(K, 2)`` int arrays of ``[start, stop)`` sam
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Float
+
+from jaxcal.arrays import Array
+
+__all__ = [
+    "StaticDetection",
+    "moving_mean",
+    "moving_variance",
+    "intervals_from_mask",
+    "detect_static",
+    "threshold_scan",
+    "static_mask",
+]
 
 
 class StaticDetection(NamedTuple):
@@ -40,7 +53,12 @@ def _cumsum0(x: Float[Array, "N ..."]) -> Float[Array, "N+1 ..."]:
 
 def moving_mean(x: Float[Array, "N ..."], half: int) -> Float[Array, "N ..."]:
     """Mean over the centred window ``[n - half, n + half]`` (clipped at the ends), along axis 0,
-    from cumulative sums."""
+    from cumulative sums.
+
+    Args:
+        x: (N, ...) signal, averaged along axis 0.
+        half: half-width of the window (samples).
+    """
     x = jnp.asarray(x)
     n = x.shape[0]
     c = _cumsum0(x)
@@ -55,6 +73,10 @@ def moving_variance(x: Float[Array, "N 3"], half: int) -> Float[Array, "N 3"]:
     """Per-axis variance over the centred window ``[n - half, n + half]`` (clipped at the ends).
 
     Computed from cumulative sums of the mean-removed signal (float64 advisable for raw counts).
+
+    Args:
+        x: (N, 3) signal, e.g. the accelerometer (any unit).
+        half: half-width of the window (samples).
     """
     x = jnp.asarray(x)
     x = x - jnp.mean(x, axis=0)
@@ -63,7 +85,12 @@ def moving_variance(x: Float[Array, "N 3"], half: int) -> Float[Array, "N 3"]:
 
 
 def intervals_from_mask(mask: np.ndarray, min_samples: int) -> np.ndarray:
-    """Runs of ``True`` at least ``min_samples`` long as ``(K, 2)`` ``[start, stop)`` indices."""
+    """Runs of ``True`` at least ``min_samples`` long as ``(K, 2)`` ``[start, stop)`` indices.
+
+    Args:
+        mask: (N,) bool, True where static.
+        min_samples: shortest run kept (samples).
+    """
     m = np.concatenate([[False], np.asarray(mask, bool), [False]])
     d = np.diff(m.astype(np.int8))
     starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
@@ -136,12 +163,24 @@ def detect_static(
 def threshold_scan(
     t: np.ndarray, acc: np.ndarray, ks: Sequence[float] = tuple(range(1, 11)), **kwargs
 ) -> list[StaticDetection]:
-    """:func:`detect_static` for each multiplier in ``ks`` (imu_tk scans 1..10)."""
+    """:func:`detect_static` for each multiplier in ``ks`` (imu_tk scans 1..10).
+
+    Args:
+        t: (N,) sample times (s).
+        acc: (N, 3) accelerometer (any unit).
+        ks: threshold multipliers to try.
+        **kwargs: the other keyword arguments of :func:`detect_static`.
+    """
     return [detect_static(t, acc, k=k, **kwargs) for k in ks]
 
 
 def static_mask(n: int, intervals: np.ndarray) -> np.ndarray:
-    """(N,) bool mask of the samples inside ``intervals``."""
+    """(N,) bool mask of the samples inside ``intervals``.
+
+    Args:
+        n: number of samples ``N``.
+        intervals: (K, 2) ``[start, stop)`` sample ranges.
+    """
     m = np.zeros(n, bool)
     for a, b in np.asarray(intervals).reshape(-1, 2):
         m[a:b] = True

@@ -9,12 +9,23 @@ are returned.
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import optax
-from jaxtyping import Array, Float, Int
+from jaxtyping import Float, Int
+
+from jaxcal.arrays import Array
+
+__all__ = [
+    "PyTree",
+    "LossFn",
+    "TrainConfig",
+    "TrainResult",
+    "fit_full_batch",
+]
 
 PyTree = Any
 LossFn = Callable[[PyTree, Any], Float[Array, ""]]
@@ -44,8 +55,8 @@ class TrainResult(NamedTuple):
     best_val: Float[Array, ""]
     best_epoch: Int[Array, ""]
     epochs: Int[Array, ""]
-    train_loss: Float[Array, "E"]
-    val_loss: Float[Array, "E"]
+    train_loss: Float[Array, " E"]
+    val_loss: Float[Array, " E"]
 
 
 def fit_full_batch(

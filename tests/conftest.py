@@ -7,11 +7,16 @@ Every ``diagnose`` report the suite produces is checked against the tool's promi
 rms, each sensor's final held-out rms is at most its baseline's, every named estimate is plausible).
 ``jaxcal.diagnose.diagnose_recording`` is wrapped here, before any test module imports it, so a
 test that produces a report breaking the promise fails, whatever it asserts itself.
+
+Precision is set here once: a test that needs 64-bit JAX takes the :func:`x64` fixture (as an
+argument or ``@pytest.mark.usefixtures("x64")``) instead of opening ``jax.enable_x64`` itself.
 """
 
 import functools
 
+import jax
 import margins
+import pytest
 
 import jaxcal.diagnose as _diagnose
 from jaxcal.diagnose.report import promise_violations
@@ -33,6 +38,18 @@ def _checked(fn):
 
 
 _diagnose.diagnose_recording = _checked(_diagnose.diagnose_recording)
+
+
+@pytest.fixture
+def x64():
+    """Run the test with 64-bit JAX (closed-form comparisons that float32 would blur).
+
+    Module-scoped fixtures the test uses are set up before it, so they stay in the default float32
+    unless they opt in themselves. With hypothesis the context is entered once for all examples
+    (intended): such tests say ``suppress_health_check=[HealthCheck.function_scoped_fixture]``.
+    """
+    with jax.enable_x64(True):
+        yield
 
 
 def pytest_configure(config):

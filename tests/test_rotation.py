@@ -3,13 +3,15 @@
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxcal import rotation as rot
 
 settings.register_profile("jaxcal", deadline=None, max_examples=60, derandomize=True)
 settings.load_profile("jaxcal")
+# Hypothesis tests that take the x64 fixture: one fixture context for all examples (intended).
+X64_HYP = settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 finite = st.floats(min_value=-10.0, max_value=10.0, allow_nan=False, allow_infinity=False)
 vec3 = st.tuples(finite, finite, finite).map(lambda t: np.asarray(t, dtype=np.float64))
@@ -25,24 +27,27 @@ grad_weighted = jax.jit(jax.grad(lambda u: jnp.sum(rot.exp_so3(u) @ jnp.arange(3
 
 
 def _exp(v):
-    with jax.enable_x64(True):
-        return np.asarray(exp64(jnp.asarray(v, dtype=jnp.float64)))
+    """Exp in float64: call from a test that takes the x64 fixture."""
+    return np.asarray(exp64(jnp.asarray(v, dtype=jnp.float64)))
 
 
+@X64_HYP
 @given(vec3)
-def test_exp_is_orthonormal_with_unit_determinant(v):
+def test_exp_is_orthonormal_with_unit_determinant(x64, v):
     r = _exp(v)
     np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
     assert abs(np.linalg.det(r) - 1.0) < 1e-12
 
 
+@X64_HYP
 @given(vec3)
-def test_exp_of_negative_is_inverse(v):
+def test_exp_of_negative_is_inverse(x64, v):
     np.testing.assert_allclose(_exp(v) @ _exp(-v), np.eye(3), atol=1e-12)
 
 
+@X64_HYP
 @given(vec3)
-def test_exp_matches_rodrigues_textbook_form(v):
+def test_exp_matches_rodrigues_textbook_form(x64, v):
     """Against the thesis's element-wise eq. 4.3 evaluated independently in numpy."""
     t = np.linalg.norm(v)
     if t < 1e-6:
@@ -59,14 +64,18 @@ def test_exp_matches_rodrigues_textbook_form(v):
     np.testing.assert_allclose(_exp(v), ref, atol=1e-12)
 
 
+@X64_HYP
 @given(small_vec3)
-def test_small_angle_agrees_with_first_order(v):
-    err = np.abs(_exp(v) - (np.eye(3) + np.asarray(rot.hat(jnp.asarray(v))))).max()
+def test_small_angle_agrees_with_first_order(x64, v):
+    # hat of the float32-rounded v, as before the x64 fixture (only Exp ran in float64)
+    err = np.abs(_exp(v) - (np.eye(3) + np.asarray(rot.hat(jnp.asarray(v, jnp.float32))))).max()
     assert err <= 0.5 * float(v @ v) + 1e-15
 
 
 def test_exp_zero_is_identity_with_finite_exact_gradient():
     for dtype in (jnp.float32, jnp.float64):
+        # Local on purpose: the float32 pass checks the default mode (x64 off), the float64 pass
+        # needs x64 on; the x64 fixture would set one mode for both passes.
         with jax.enable_x64(dtype == jnp.float64):
             z = jnp.zeros(3, dtype=dtype)
             np.testing.assert_array_equal(np.asarray(rot.exp_so3(z)), np.eye(3))
@@ -84,66 +93,63 @@ def test_gradient_is_finite_everywhere(v):
     assert np.all(np.isfinite(np.asarray(g)))
 
 
+@X64_HYP
 @given(vec3)
-def test_log_inverts_exp(v):
+def test_log_inverts_exp(x64, v):
     t = np.linalg.norm(v)
     if t > np.pi - 1e-3:  # log returns the representative with angle in [0, pi]
         v = v / t * (t % (2 * np.pi))
         t = np.linalg.norm(v)
         if t > np.pi - 1e-3:
             v = v / t * (t - 2 * np.pi)
-    with jax.enable_x64(True):
-        back = np.asarray(log_jit(exp64(jnp.asarray(v))))
+    back = np.asarray(log_jit(exp64(jnp.asarray(v))))
     np.testing.assert_allclose(back, v, atol=1e-9)
 
 
+@X64_HYP
 @given(st.integers(min_value=0, max_value=2**31 - 1))
-def test_exp_of_log_is_identity_map_on_so3(seed):
-    with jax.enable_x64(True):
-        r = rot.random_rotation(jax.random.PRNGKey(seed))
-        np.testing.assert_allclose(np.asarray(exp64(log_jit(r))), np.asarray(r), atol=1e-10)
+def test_exp_of_log_is_identity_map_on_so3(x64, seed):
+    r = rot.random_rotation(jax.random.PRNGKey(seed))
+    np.testing.assert_allclose(np.asarray(exp64(log_jit(r))), np.asarray(r), atol=1e-10)
 
 
-def test_log_near_pi_and_at_identity():
-    with jax.enable_x64(True):
-        for v in (jnp.array([np.pi, 0, 0]), jnp.array([0, 1e-9, 0]), jnp.zeros(3)):
-            np.testing.assert_allclose(np.asarray(log_jit(exp64(v))), np.asarray(v), atol=1e-9)
+def test_log_near_pi_and_at_identity(x64):
+    for v in (jnp.array([np.pi, 0, 0]), jnp.array([0, 1e-9, 0]), jnp.zeros(3)):
+        np.testing.assert_allclose(np.asarray(log_jit(exp64(v))), np.asarray(v), atol=1e-9)
 
 
+@X64_HYP
 @given(vec3, vec3)
-def test_quaternion_round_trip(a, b):
-    with jax.enable_x64(True):
-        r = exp64(jnp.asarray(a)) @ exp64(jnp.asarray(b))
-        np.testing.assert_allclose(np.asarray(rot.matrix_from_quat(rot.quat_from_matrix(r))), np.asarray(r), atol=1e-12)
+def test_quaternion_round_trip(x64, a, b):
+    r = exp64(jnp.asarray(a)) @ exp64(jnp.asarray(b))
+    np.testing.assert_allclose(np.asarray(rot.matrix_from_quat(rot.quat_from_matrix(r))), np.asarray(r), atol=1e-12)
 
 
-def test_compose_is_ordered_product():
-    with jax.enable_x64(True):
-        vs = jax.random.normal(jax.random.PRNGKey(0), (5, 3))
-        rs = exp64(vs)
-        ref = rs[0] @ rs[1] @ rs[2] @ rs[3] @ rs[4]
-        np.testing.assert_allclose(np.asarray(rot.compose(rs)), np.asarray(ref), atol=1e-12)
-        # Constant rate: the product of N equal steps is one step of N times the angle.
-        w = jnp.array([0.3, -0.2, 0.1])
-        np.testing.assert_allclose(
-            np.asarray(rot.total_rotation(jnp.tile(w, (100, 1)), 0.01)), np.asarray(exp64(w)), atol=1e-12
-        )
+def test_compose_is_ordered_product(x64):
+    vs = jax.random.normal(jax.random.PRNGKey(0), (5, 3))
+    rs = exp64(vs)
+    ref = rs[0] @ rs[1] @ rs[2] @ rs[3] @ rs[4]
+    np.testing.assert_allclose(np.asarray(rot.compose(rs)), np.asarray(ref), atol=1e-12)
+    # Constant rate: the product of N equal steps is one step of N times the angle.
+    w = jnp.array([0.3, -0.2, 0.1])
+    np.testing.assert_allclose(
+        np.asarray(rot.total_rotation(jnp.tile(w, (100, 1)), 0.01)), np.asarray(exp64(w)), atol=1e-12
+    )
 
 
-def test_specific_force_follows_physical_convention():
+def test_specific_force_follows_physical_convention(x64):
     """f_n = R_n^T g_up with R_{n+1} = R_n Exp(w_n dt): propagation agrees with orientation."""
-    with jax.enable_x64(True):
-        k1, k2 = jax.random.split(jax.random.PRNGKey(3))
-        r0 = rot.random_rotation(k1)
-        w = 0.5 * jax.random.normal(k2, (50, 3))
-        up = jnp.array([0.0, 0.0, 1.0])  # at rest the accelerometer reads +1 g along world up
-        f = rot.propagate_specific_force(r0.T @ up, w, 0.01)
-        rs = rot.integrate_orientation(r0, w, 0.01)
-        np.testing.assert_allclose(np.asarray(f), np.asarray(jnp.einsum("nji,j->ni", rs, up)), atol=1e-12)
-        np.testing.assert_allclose(np.linalg.norm(np.asarray(f), axis=1), 1.0, atol=1e-12)
-        # A rotation about world up leaves the reading unchanged.
-        f_yaw = rot.propagate_specific_force(up, jnp.tile(jnp.array([0.0, 0.0, 1.0]), (10, 1)), 0.1)
-        np.testing.assert_allclose(np.asarray(f_yaw), np.tile(np.asarray(up), (11, 1)), atol=1e-12)
-        # After a +90 deg roll about body x, body y points up: the reading moves to +1 g on y.
-        f_roll = rot.propagate_specific_force(up, jnp.array([[np.pi / 2, 0.0, 0.0]]), 1.0)
-        np.testing.assert_allclose(np.asarray(f_roll[-1]), [0.0, 1.0, 0.0], atol=1e-12)
+    k1, k2 = jax.random.split(jax.random.PRNGKey(3))
+    r0 = rot.random_rotation(k1)
+    w = 0.5 * jax.random.normal(k2, (50, 3))
+    up = jnp.array([0.0, 0.0, 1.0])  # at rest the accelerometer reads +1 g along world up
+    f = rot.propagate_specific_force(r0.T @ up, w, 0.01)
+    rs = rot.integrate_orientation(r0, w, 0.01)
+    np.testing.assert_allclose(np.asarray(f), np.asarray(jnp.einsum("nji,j->ni", rs, up)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(f), axis=1), 1.0, atol=1e-12)
+    # A rotation about world up leaves the reading unchanged.
+    f_yaw = rot.propagate_specific_force(up, jnp.tile(jnp.array([0.0, 0.0, 1.0]), (10, 1)), 0.1)
+    np.testing.assert_allclose(np.asarray(f_yaw), np.tile(np.asarray(up), (11, 1)), atol=1e-12)
+    # After a +90 deg roll about body x, body y points up: the reading moves to +1 g on y.
+    f_roll = rot.propagate_specific_force(up, jnp.array([[np.pi / 2, 0.0, 0.0]]), 1.0)
+    np.testing.assert_allclose(np.asarray(f_roll[-1]), [0.0, 1.0, 0.0], atol=1e-12)

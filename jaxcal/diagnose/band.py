@@ -80,7 +80,15 @@ def _spectra(y: np.ndarray, x: np.ndarray, valid: np.ndarray, dt: float, seg_s: 
 
 def coherence(y: np.ndarray, x: np.ndarray, valid: np.ndarray, dt: float, seg_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
     """Per-axis magnitude-squared coherence of ``y`` and ``x`` (N, C): ``(freq (F,), coh (F, C))``
-    (Welch, :func:`_spectra`; zeros when too few valid windows)."""
+    (Welch, :func:`_spectra`; zeros when too few valid windows).
+
+    Args:
+        y: (N, C) sensor output.
+        x: (N, C) reference.
+        valid: (N,) bool, samples whose reference exists.
+        dt: sample interval (s).
+        seg_s: Welch window length (s).
+    """
     sp = _spectra(y, x, valid, dt, seg_s)
     if sp is None:
         m = max(16, int(round(seg_s / dt)))
@@ -99,7 +107,15 @@ def reference_gain(y: np.ndarray, x: np.ndarray, valid: np.ndarray, dt: float, s
     rotation (and any delay: both only rotate or phase-shift ``H``), below 1 by the
     errors-in-variables attenuation where the reference carries its own noise. The sensors' outputs
     are in physical units via their datasheet values, so their own scale is 1 to a few percent;
-    sensor noise (vibration) leaves the estimate unbiased. Zeros when too few valid windows."""
+    sensor noise (vibration) leaves the estimate unbiased. Zeros when too few valid windows.
+
+    Args:
+        y: (N, 3) sensor output (physical units).
+        x: (N, 3) reference.
+        valid: (N,) bool, samples whose reference exists.
+        dt: sample interval (s).
+        seg_s: Welch window length (s).
+    """
     n = len(y)
     m = max(16, int(round(seg_s / dt)))
     freq = np.fft.rfftfreq(m, dt)
@@ -124,7 +140,14 @@ def reference_gain(y: np.ndarray, x: np.ndarray, valid: np.ndarray, dt: float, s
 
 def coherent_edge(freq: np.ndarray, coh: np.ndarray, threshold: float = 0.8, smooth: int = 3) -> np.ndarray:
     """Per axis, the frequency (Hz) below which a measure (coherence or reference gain) stays at or
-    above ``threshold``: the first bin above 0.5 Hz where a ``smooth``-bin running mean falls below it."""
+    above ``threshold``: the first bin above 0.5 Hz where a ``smooth``-bin running mean falls below it.
+
+    Args:
+        freq: (F,) bin frequencies (Hz).
+        coh: (F, C) the measure per axis.
+        threshold: level the measure must keep.
+        smooth: bins in the running mean.
+    """
     out = np.zeros(coh.shape[1])
     start = max(1, int(np.searchsorted(freq, 0.25)))  # never the DC bin (windows are mean-removed)
     h = smooth // 2

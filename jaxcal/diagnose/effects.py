@@ -32,9 +32,37 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Float
 
-G0 = 9.80665  # standard gravity, m/s^2 per g
+from jaxcal.arrays import Array
+from jaxcal.constants import G0
+
+__all__ = [
+    "OFFDIAG",
+    "UNITS",
+    "PLAUSIBLE",
+    "PLAUSIBLE_RANGE",
+    "implausible",
+    "SATURATION",
+    "EFFECT_NAMES",
+    "Slot",
+    "LAYOUT",
+    "N_THETA",
+    "slot",
+    "effect_mask",
+    "theta_from_params",
+    "params_from_theta",
+    "Inputs",
+    "as_jax",
+    "shift_signal",
+    "sensor_input",
+    "effects_forward",
+    "N_BASE",
+    "baseline_apply",
+    "identity_beta",
+    "model_output",
+    "regressors",
+]
 
 # effect name -> (parameter name, shape) for the smooth effects of each sensor, in model order.
 _ACC_EFFECTS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
@@ -124,7 +152,13 @@ PLAUSIBLE_RANGE = {
 
 def implausible(sensor: str, name: str, theta) -> float:
     """Largest |component| of effect ``name`` in ``theta`` over its :data:`PLAUSIBLE_RANGE`
-    (> 1: outside the range; 0 for effects without a range)."""
+    (> 1: outside the range; 0 for effects without a range).
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"``.
+        name: effect name.
+        theta: (P,) flat effect parameters of ``sensor``.
+    """
     lim = PLAUSIBLE_RANGE.get((name, sensor))
     if lim is None:
         return 0.0
@@ -171,7 +205,12 @@ N_THETA = {s: sum(sl.size for sl in LAYOUT[s]) for s in LAYOUT}
 
 
 def slot(sensor: str, name: str) -> Slot:
-    """The :class:`Slot` of effect ``name`` for ``sensor`` (KeyError if it does not apply)."""
+    """The :class:`Slot` of effect ``name`` for ``sensor`` (KeyError if it does not apply).
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"``.
+        name: effect name.
+    """
     for sl in LAYOUT[sensor]:
         if sl.name == name:
             return sl
@@ -179,7 +218,12 @@ def slot(sensor: str, name: str) -> Slot:
 
 
 def effect_mask(sensor: str, names) -> np.ndarray:
-    """0/1 float mask over ``theta`` selecting the parameters of the effects ``names``."""
+    """0/1 float mask over ``theta`` selecting the parameters of the effects ``names``.
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"``.
+        names: effect names (``"saturation"`` is skipped).
+    """
     m = np.zeros(N_THETA[sensor])
     for n in names:
         if n == SATURATION:
@@ -194,6 +238,10 @@ def theta_from_params(sensor: str, params: dict[str, dict[str, np.ndarray]]) -> 
 
     ``misalignment.m`` may be given as the (3, 3) matrix (its diagonal is ignored) or the 6
     off-diagonal entries; ``g_sensitivity.G`` as (3, 3) or 9 row-major entries.
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"``.
+        params: ``{effect: {param: value}}``.
     """
     th = np.zeros(N_THETA[sensor])
     for name, p in params.items():
@@ -208,7 +256,13 @@ def theta_from_params(sensor: str, params: dict[str, dict[str, np.ndarray]]) -> 
 
 
 def params_from_theta(sensor: str, name: str, theta) -> dict[str, object]:
-    """``{param: value}`` of effect ``name`` from flat ``theta`` (matrices as nested lists)."""
+    """``{param: value}`` of effect ``name`` from flat ``theta`` (matrices as nested lists).
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"``.
+        name: effect name.
+        theta: (P,) flat effect parameters.
+    """
     sl = slot(sensor, name)
     v = np.asarray(theta)[sl.start : sl.start + sl.size]
     if name == "misalignment":
@@ -243,7 +297,12 @@ class Inputs(NamedTuple):
 
 
 def as_jax(inp: Inputs, dtype=jnp.float64) -> Inputs:
-    """``inp`` with every present field a JAX array of ``dtype`` (absent optional fields stay None)."""
+    """``inp`` with every present field a JAX array of ``dtype`` (absent optional fields stay None).
+
+    Args:
+        inp: reference signals (numpy or JAX).
+        dtype: dtype of every field.
+    """
     return Inputs(*[None if a is None else jnp.asarray(a, dtype) for a in inp])
 
 
@@ -253,6 +312,11 @@ def shift_signal(x: Float[Array, "N C"], tau: Float[Array, ""], dt: float | Floa
     Differentiable in ``tau`` at every value (sub-sample and many-sample shifts alike); the even
     extension avoids the wrap-around jump of a plain circular shift. The first/last ``|tau|/dt``
     samples are extrapolated by reflection, so fits should drop them.
+
+    Args:
+        x: (N, C) signal.
+        tau: shift (s; positive delays).
+        dt: sample interval (s).
     """
     n = x.shape[0]
     xe = jnp.concatenate([x, x[::-1]], axis=0)
@@ -266,8 +330,14 @@ def _split(sensor: str, theta):
     return {sl.name: theta[sl.start : sl.start + sl.size] for sl in LAYOUT[sensor]}
 
 
-def sensor_input(sensor: str, theta: Float[Array, " P"], inp: Inputs) -> Float[Array, "N 3"]:
-    """The physical input the sensor sees before its own errors (lever arm / g-sensitivity)."""
+def sensor_input(sensor: str, theta: Float[Array, " Q"], inp: Inputs) -> Float[Array, "N 3"]:
+    """The physical input the sensor sees before its own errors (lever arm / g-sensitivity).
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"`` (static).
+        theta: (Q,) flat effect parameters.
+        inp: reference signals.
+    """
     p = _split(sensor, theta)
     if sensor == "acc":
         r = p["lever_arm"]
@@ -278,8 +348,14 @@ def sensor_input(sensor: str, theta: Float[Array, " P"], inp: Inputs) -> Float[A
     return inp.w + inp.f @ g.T
 
 
-def effects_forward(sensor: str, theta: Float[Array, " P"], inp: Inputs) -> Float[Array, "N 3"]:
-    """``u`` of the module docstring: the input after every smooth effect, before the baseline."""
+def effects_forward(sensor: str, theta: Float[Array, " Q"], inp: Inputs) -> Float[Array, "N 3"]:
+    """``u`` of the module docstring: the input after every smooth effect, before the baseline.
+
+    Args:
+        sensor: ``"acc"`` or ``"gyr"`` (static).
+        theta: (Q,) flat effect parameters.
+        inp: reference signals.
+    """
     p = _split(sensor, theta)
     x = sensor_input(sensor, theta, inp)
     x = shift_signal(x, p["time_offset"][0], inp.dt)
@@ -297,7 +373,13 @@ N_BASE = {"diag": 6, "affine": 12}
 
 
 def baseline_apply(kind: str, beta: Float[Array, " B"], u: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
-    """Baseline ``y = diag(s) u + b`` (``beta = [s, b]``) or ``y = S u + b`` (``beta = [S.ravel(), b]``)."""
+    """Baseline ``y = diag(s) u + b`` (``beta = [s, b]``) or ``y = S u + b`` (``beta = [S.ravel(), b]``).
+
+    Args:
+        kind: ``"diag"`` or ``"affine"`` (static).
+        beta: (B,) baseline parameters.
+        u: (N, 3) input after the effects.
+    """
     if kind == "diag":
         return beta[:3] * u + beta[3:6]
     return u @ beta[:9].reshape(3, 3).T + beta[9:12]
@@ -311,15 +393,30 @@ def identity_beta(kind: str) -> np.ndarray:
 
 
 def model_output(kind: str, sensor: str, beta, theta, inp: Inputs) -> Float[Array, "N 3"]:
-    """Full extended model output (physical units, before saturation and rounding)."""
+    """Full extended model output (physical units, before saturation and rounding).
+
+    Args:
+        kind: ``"diag"`` or ``"affine"`` (static).
+        sensor: ``"acc"`` or ``"gyr"`` (static).
+        beta: (B,) baseline parameters.
+        theta: (Q,) flat effect parameters.
+        inp: reference signals.
+    """
     return baseline_apply(kind, beta, effects_forward(sensor, theta, inp))
 
 
-def regressors(kind: str, sensor: str, beta, theta, inp: Inputs) -> tuple[Float[Array, "N 3 B"], Float[Array, "N 3 P"]]:
+def regressors(kind: str, sensor: str, beta, theta, inp: Inputs) -> tuple[Float[Array, "N 3 B"], Float[Array, "N 3 Q"]]:
     """Jacobians of the model output w.r.t. baseline and effect parameters, by forward-mode autodiff.
 
     These are the candidate regressors: around ``theta`` (usually zero, i.e. the baseline) the
     output changes by ``J_beta d_beta + J_theta d_theta``.
+
+    Args:
+        kind: ``"diag"`` or ``"affine"`` (static).
+        sensor: ``"acc"`` or ``"gyr"`` (static).
+        beta: (B,) baseline parameters (linearisation point).
+        theta: (Q,) effect parameters (linearisation point).
+        inp: reference signals.
     """
     jb = jax.jacfwd(lambda b: model_output(kind, sensor, b, theta, inp))(beta)
     jt = jax.jacfwd(lambda th: model_output(kind, sensor, beta, th, inp))(theta)

@@ -13,6 +13,7 @@ vectors into the reference body frame); ``P - I`` is scale (diagonal) and non-or
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 __all__ = ["polar", "rotation_split", "lever_arm_frames"]
@@ -66,9 +67,15 @@ def rotation_split(S: np.ndarray, cov_S: np.ndarray | None = None) -> dict:
     return out
 
 
-def lever_arm_frames(r_ref: np.ndarray, se_ref: np.ndarray, R_ref_imu: np.ndarray) -> dict:
+def lever_arm_frames(r_ref: npt.ArrayLike, se_ref: npt.ArrayLike, R_ref_imu: npt.ArrayLike) -> dict:
     """The lever arm (IMU position relative to the reference point) in the reference body frame
-    (as estimated) and in the IMU frame (``R_ref_imu^T r``), with standard errors."""
+    (as estimated) and in the IMU frame (``R_ref_imu^T r``), with standard errors.
+
+    Args:
+        r_ref: (3,) lever arm in the reference body frame (m).
+        se_ref: (3,) its standard errors (m).
+        R_ref_imu: (3, 3) rotates IMU-frame vectors into the reference body frame.
+    """
     r_ref = np.asarray(r_ref, np.float64)
     Rt = np.asarray(R_ref_imu, np.float64).T
     se_imu = np.sqrt((Rt**2) @ (np.asarray(se_ref, np.float64) ** 2))

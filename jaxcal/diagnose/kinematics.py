@@ -17,9 +17,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from jaxcal.diagnose.effects import G0
+from jaxcal.constants import G0
 from jaxcal.rotation import log_so3, matrix_from_quat
 
+__all__ = [
+    "FIRST_STAGE_SIGMA",
+    "gaussian_kernels",
+    "smooth",
+    "derivative",
+    "derivative5",
+    "reference_from_pose",
+    "reference_gap_mask",
+]
 
 FIRST_STAGE_SIGMA = 0.015  # s: world-frame kernel of the specific force before rotation (see reference_from_pose)
 
@@ -30,6 +39,10 @@ def gaussian_kernels(sigma: float, dt: float) -> tuple[np.ndarray, np.ndarray, n
     The smoother sums to 1, the first-derivative kernel maps ``t`` to 1 and the second maps
     ``t^2/2`` to 1 exactly (moment-corrected), so polynomials up to degree 2 are differentiated
     without bias.
+
+    Args:
+        sigma: kernel width (s).
+        dt: sample interval (s).
     """
     half = max(1, int(np.ceil(4.0 * sigma / dt)))
     tk = np.arange(-half, half + 1) * dt
@@ -52,17 +65,34 @@ def _conv(x: np.ndarray, h: np.ndarray) -> np.ndarray:
 
 
 def smooth(x: np.ndarray, sigma: float, dt: float) -> np.ndarray:
-    """Gaussian smoothing of an (N, C) signal (the same kernel as the pose derivatives)."""
+    """Gaussian smoothing of an (N, C) signal (the same kernel as the pose derivatives).
+
+    Args:
+        x: (N, C) signal.
+        sigma: kernel width (s).
+        dt: sample interval (s).
+    """
     return _conv(np.asarray(x, np.float64), gaussian_kernels(sigma, dt)[0])
 
 
 def derivative(x: np.ndarray, sigma: float, dt: float) -> np.ndarray:
-    """Smoothed first time derivative of an (N, C) signal (per second)."""
+    """Smoothed first time derivative of an (N, C) signal (per second).
+
+    Args:
+        x: (N, C) signal.
+        sigma: kernel width (s).
+        dt: sample interval (s).
+    """
     return _conv(np.asarray(x, np.float64), gaussian_kernels(sigma, dt)[1])
 
 
 def derivative5(x: np.ndarray, dt: float) -> np.ndarray:
-    """Five-point central difference (error O(dt^4)) of an (N, C) signal; one-sided at the ends."""
+    """Five-point central difference (error O(dt^4)) of an (N, C) signal; one-sided at the ends.
+
+    Args:
+        x: (N, C) signal.
+        dt: sample interval (s).
+    """
     x = np.asarray(x, np.float64)
     d = np.gradient(x, dt, axis=0)
     d[2:-2] = (x[:-4] - 8 * x[1:-3] + 8 * x[3:-1] - x[4:]) / (12 * dt)
@@ -154,6 +184,12 @@ def reference_gap_mask(t: np.ndarray, t_track: np.ndarray, max_gap: float = 1.5,
     sample. A slerp across a missing mocap sample at fast rotation is wrong by much more than the
     mocap noise, and a derivative of it is worse; readers interpolate over short gaps (they keep the
     track as ``gt_t``), so diagnosis re-marks them from the track's own times.
+
+    Args:
+        t: (N,) query times (s).
+        t_track: (M,) times of the track's samples (s).
+        max_gap: longest trusted gap, in median track intervals.
+        max_dist: farthest trusted distance from a track sample, in median track intervals.
     """
     t = np.asarray(t, np.float64)
     tt = np.asarray(t_track, np.float64)

@@ -12,6 +12,13 @@ import numpy as np
 
 from jaxcal.diagnose.whiten import ljung_box
 
+__all__ = [
+    "band_power",
+    "allan_deviation",
+    "breakdown",
+    "whiteness",
+]
+
 
 def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x * x))) if x.size else float("nan")
@@ -27,7 +34,14 @@ def _bins(resid, rows, key, edges, labels):
 
 def band_power(resid: np.ndarray, rows: np.ndarray, dt: float, edges=(0.0, 0.1, 1.0, 10.0, np.inf)) -> list[dict]:
     """RMS of the residual per frequency band (periodogram of the valid-masked residual, all axes)
-    and the share a white residual of the same RMS would put there (``white_share``)."""
+    and the share a white residual of the same RMS would put there (``white_share``).
+
+    Args:
+        resid: (N, 3) residual.
+        rows: (N,) bool, the rows used.
+        dt: sample interval (s).
+        edges: band edges (Hz); bands above Nyquist are dropped.
+    """
     r = np.where(rows[:, None], resid - resid[rows].mean(0), 0.0)
     n = len(r)
     spec = np.abs(np.fft.rfft(r, axis=0)) ** 2
@@ -47,7 +61,13 @@ def band_power(resid: np.ndarray, rows: np.ndarray, dt: float, edges=(0.0, 0.1, 
 
 
 def allan_deviation(x: np.ndarray, dt: float, n_taus: int = 12) -> tuple[np.ndarray, np.ndarray]:
-    """Overlapping Allan deviation of a (N,) rate-like series at octave-spaced ``tau`` (s)."""
+    """Overlapping Allan deviation of a (N,) rate-like series at octave-spaced ``tau`` (s).
+
+    Args:
+        x: (N,) rate-like series.
+        dt: sample interval (s).
+        n_taus: caps the octaves at ``n_taus + 8`` (the length also limits them).
+    """
     x = np.asarray(x, np.float64)
     n = len(x)
     theta = np.concatenate([[0.0], np.cumsum(x)]) * dt
@@ -65,7 +85,18 @@ def allan_deviation(x: np.ndarray, dt: float, n_taus: int = 12) -> tuple[np.ndar
 def breakdown(resid: np.ndarray, rows: np.ndarray, t: np.ndarray, w: np.ndarray, wdot: np.ndarray,
               temp: np.ndarray | None, dt: float, n_segments: int = 10) -> dict:
     """Where the residual (N, 3) lives: per axis, time segment, rate/angular-acceleration regime,
-    temperature bin and frequency band; plus the single most elevated bin (``"where"``)."""
+    temperature bin and frequency band; plus the single most elevated bin (``"where"``).
+
+    Args:
+        resid: (N, 3) residual.
+        rows: (N,) bool, the rows used.
+        t: (N,) times (s).
+        w: (N, 3) body rate (rad/s).
+        wdot: (N, 3) angular acceleration (rad/s^2).
+        temp: (N,) temperature (degC); None: no temperature bins.
+        dt: sample interval (s).
+        n_segments: equal time segments.
+    """
     overall = _rms(resid[rows])
     out: dict = {"rms": overall, "axis": [_rms(resid[rows, i]) for i in range(3)]}
     seg = np.minimum((np.arange(len(t)) * n_segments) // len(t), n_segments - 1)
@@ -95,7 +126,13 @@ def breakdown(resid: np.ndarray, rows: np.ndarray, t: np.ndarray, w: np.ndarray,
 
 
 def whiteness(resid: np.ndarray, rows: np.ndarray, dt: float) -> dict:
-    """Ljung-Box Q (20 lags, per axis; ~20 if white) and Allan deviation of the residual."""
+    """Ljung-Box Q (20 lags, per axis; ~20 if white) and Allan deviation of the residual.
+
+    Args:
+        resid: (N, 3) residual.
+        rows: (N,) bool, the rows used.
+        dt: sample interval (s).
+    """
     r = resid[rows]
     taus, _ = allan_deviation(r[:, 0], dt)
     return {"ljung_box_q20": [ljung_box(r[:, i]) for i in range(3)],

@@ -40,6 +40,13 @@ import optimistix as optx
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.whiten import ARModel, fill_index, gap_ok, local_level_gains
 
+__all__ = [
+    "MAX_TAPS",
+    "RefitResult",
+    "block_sandwich_cov",
+    "refit",
+]
+
 MAX_TAPS = 65
 
 
@@ -148,14 +155,26 @@ def block_sandwich_cov(jac: np.ndarray, rr: np.ndarray, hess: np.ndarray, row_bl
 
 def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs, y: np.ndarray, rows: np.ndarray,
           ars: list[ARModel], block: np.ndarray | None = None, max_steps: int = 128, huber: float | None = 3.0) -> RefitResult:
-    """Fit baseline + effects ``names`` jointly on ``rows`` (bool (N,)) from ``(beta0, theta0)``.
+    """Fit baseline + effects ``names`` jointly on ``rows`` from ``(beta0, theta0)``.
 
-    ``block`` (N,) int: time-block ids for the block-sandwich standard error (omitted: model-based
-    standard error only). ``huber``: robust down-weighting of outliers (mocap glitches, shocks):
-    after the least-squares solve, whitened rows whose residual exceeds ``huber`` robust standard
-    deviations (1.4826 x median absolute residual) get the Huber weight ``huber sd / |r|`` and the
-    fit is solved once more (the block sandwich keeps the standard errors honest under the
-    weights); None: plain least squares. On Gaussian noise about 0.3 % of rows are touched.
+    Huber step: after the least-squares solve, whitened rows whose residual exceeds ``huber`` robust
+    standard deviations (1.4826 x median absolute residual) get the Huber weight ``huber sd / |r|``
+    and the fit is solved once more (the block sandwich keeps the standard errors honest under the
+    weights). On Gaussian noise about 0.3 % of rows are touched.
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"`` (static in the compiled solve).
+        sensor: ``"acc"`` or ``"gyr"`` (static in the compiled solve).
+        beta0: (B,) starting baseline parameters.
+        theta0: (P,) starting effect parameters (masked to ``names``).
+        names: the effects fitted; the others are held at zero.
+        inp: reference signals.
+        y: (N, 3) sensor output (physical units).
+        rows: (N,) bool, the rows fitted.
+        ars: per-axis noise models (3), the whitening.
+        block: (N,) int time-block ids for the block-sandwich standard error; None: model-based only.
+        max_steps: Levenberg-Marquardt step cap (static).
+        huber: outlier threshold in robust sd (mocap glitches, shocks); None: plain least squares.
     """
     mask = E.effect_mask(sensor, names)
     taps, sig, th = _filters(ars, len(y))

@@ -34,7 +34,36 @@ import numpy as np
 from scipy import optimize, stats
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.whiten import ARModel, apply_filter, fill_index, fit_ar, gap_ok, row_ok
+from jaxcal.diagnose.whiten import ARModel, apply_filter, fill_index, gap_ok, row_ok
+
+__all__ = [
+    "SensorData",
+    "SelectConfig",
+    "linearize",
+    "linearize_baseline",
+    "fit_baseline",
+    "System",
+    "build_system",
+    "rss",
+    "group_columns",
+    "candidates",
+    "projected_information",
+    "cross_gram",
+    "attenuation",
+    "block_score_inflation",
+    "critical_value",
+    "detectable_noncentrality",
+    "minimum_detectable",
+    "canonical_correlation",
+    "coarse_lag",
+    "Decision",
+    "cv_rss",
+    "forward_select",
+    "heldout_rms_path",
+    "saturation_plateau",
+    "saturation_stat",
+    "saturation_mds",
+]
 
 
 class SensorData(NamedTuple):
@@ -58,7 +87,20 @@ class SensorData(NamedTuple):
 
 
 class SelectConfig(NamedTuple):
-    """Test level and search settings."""
+    """Test level and search settings of :func:`jaxcal.diagnose.core.diagnose_sensor`.
+
+    Host-side settings: the selection runs in numpy, so no field is traced or compiled.
+
+    Attributes:
+        alpha: family-wise false-discovery level per recording (Bonferroni over its candidates).
+        power: detection probability that defines the minimum detectable size.
+        max_lag_s: coarse time-offset search range (s).
+        max_ar_order: largest AR order of the noise model.
+        confound_threshold: canonical correlation above which two effects are called confounded.
+        max_passes: noise-model / selection iterations.
+        rw_pooled: one random-walk level per sensor (its axes share it).
+        rw_slack: profile log-likelihood slack of that level (1.92: upper end of a ~95 % interval).
+    """
 
     alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
     power: float = 0.8  # power that defines the minimum detectable size
@@ -81,7 +123,14 @@ def _linearize(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
 
 
 def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
-    """``(X (N, 3, B+P), z (N, 3))``: regressors [baseline | effects] and residual at (beta, theta)."""
+    """``(X (N, 3, B+P), z (N, 3))``: regressors [baseline | effects] and residual at (beta, theta).
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"`` (static in the compiled core).
+        sd: the sensor's prepared data.
+        beta: (B,) baseline parameters.
+        theta: (P,) effect parameters (:data:`~jaxcal.diagnose.effects.LAYOUT`).
+    """
     with jax.enable_x64(True):
         inp = E.as_jax(sd.inp)
         jb, jt, z = _linearize(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
@@ -96,7 +145,14 @@ def _linearize_base(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
 
 
 def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
-    """Like :func:`linearize` but only the baseline columns ``(X (N, 3, B), z (N, 3))``."""
+    """Like :func:`linearize` but only the baseline columns ``(X (N, 3, B), z (N, 3))``.
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"`` (static in the compiled core).
+        sd: the sensor's prepared data.
+        beta: (B,) baseline parameters.
+        theta: (P,) effect parameters, held fixed.
+    """
     with jax.enable_x64(True):
         inp = E.as_jax(sd.inp)
         jb, z = _linearize_base(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
@@ -104,7 +160,13 @@ def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.nd
 
 
 def fit_baseline(kind: str, sd: SensorData, rows: np.ndarray) -> np.ndarray:
-    """Ordinary least-squares baseline ``beta`` on ``rows`` (the baseline is linear in beta)."""
+    """Ordinary least-squares baseline ``beta`` on ``rows`` (the baseline is linear in beta).
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sd: the sensor's prepared data.
+        rows: (N,) bool, the rows fitted.
+    """
     beta0 = E.identity_beta(kind)
     x, z = linearize(kind, sd, beta0, np.zeros(E.N_THETA[sd.sensor]))
     nb = E.N_BASE[kind]
@@ -144,7 +206,15 @@ class System(NamedTuple):
 def build_system(x: np.ndarray, z: np.ndarray, ars: list[ARModel], fit_rows: np.ndarray, block: np.ndarray) -> System:
     """Whiten each axis of ``x`` (N, 3, Q) and ``z`` (N, 3) with its AR model; Grams per block.
 
-    A whitened row belongs to a block only if its whole filter window lies inside that block."""
+    A whitened row belongs to a block only if its whole filter window lies inside that block.
+
+    Args:
+        x: (N, 3, Q) regressors.
+        z: (N, 3) residual.
+        ars: per-axis noise models (3).
+        fit_rows: (N,) bool, the rows used.
+        block: (N,) int time-block ids.
+    """
     q = x.shape[2]
     nb = int(block.max()) + 1
     G, g, zz = np.zeros((nb, q, q)), np.zeros((nb, q)), np.zeros(nb)
@@ -188,19 +258,38 @@ def _solve(G: np.ndarray, g: np.ndarray, cols: list[int]) -> np.ndarray:
 
 
 def rss(G: np.ndarray, g: np.ndarray, zz: float, cols: list[int], th: np.ndarray) -> float:
-    """Residual sum of squares ``|z - X_cols th|^2`` from the normal equations."""
+    """Residual sum of squares ``|z - X_cols th|^2`` from the normal equations.
+
+    Args:
+        G: (Q, Q) Gram ``X^T X``.
+        g: (Q,) ``X^T z``.
+        zz: ``z^T z``.
+        cols: the columns in the model.
+        th: the solution on ``cols``.
+    """
     return float(zz - 2.0 * th @ g[cols] + th @ G[np.ix_(cols, cols)] @ th)
 
 
 def group_columns(kind: str, sensor: str, name: str) -> list[int]:
-    """Columns of effect ``name`` in the [baseline | theta] layout."""
+    """Columns of effect ``name`` in the [baseline | theta] layout.
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sensor: ``"acc"`` or ``"gyr"``.
+        name: effect name.
+    """
     sl = E.slot(sensor, name)
     nb = E.N_BASE[kind]
     return list(range(nb + sl.start, nb + sl.start + sl.size))
 
 
 def candidates(kind: str, sd: SensorData) -> list[str]:
-    """Smooth effects testable for this sensor and baseline (saturation is handled separately)."""
+    """Smooth effects testable for this sensor and baseline (saturation is handled separately).
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sd: the sensor's prepared data.
+    """
     out = []
     for sl in E.LAYOUT[sd.sensor]:
         if kind == "affine" and sl.name == "misalignment":
@@ -212,7 +301,13 @@ def candidates(kind: str, sd: SensorData) -> list[str]:
 
 
 def projected_information(S: System, base: list[int], cols: list[int]) -> np.ndarray:
-    """Fisher information of ``cols`` after projecting out ``base`` (whitened, all blocks)."""
+    """Fisher information of ``cols`` after projecting out ``base`` (whitened, all blocks).
+
+    Args:
+        S: the whitened system.
+        base: columns projected out (the baseline).
+        cols: the group's columns.
+    """
     G = S.G_all
     gbb = G[np.ix_(base, base)]
     gbc = G[np.ix_(base, cols)]
@@ -222,7 +317,14 @@ def projected_information(S: System, base: list[int], cols: list[int]) -> np.nda
 
 def cross_gram(x_ref: np.ndarray, x_meas: np.ndarray, ars: list[ARModel], rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whitened Gram ``X_ref^T X_ref`` and cross-Gram ``X_ref^T X_meas`` (Q, Q) of regressors
-    (N, 3, Q) on the reference motion and on the sensors' measured signals, summed over axes."""
+    (N, 3, Q) on the reference motion and on the sensors' measured signals, summed over axes.
+
+    Args:
+        x_ref: (N, 3, Q) regressors on the reference motion.
+        x_meas: (N, 3, Q) the same regressors on the sensors' measured signals.
+        ars: per-axis noise models (3).
+        rows: (N,) bool, the rows used.
+    """
     q = x_ref.shape[2]
     Grr, Grm = np.zeros((q, q)), np.zeros((q, q))
     fi = fill_index(rows)
@@ -246,6 +348,11 @@ def attenuation(Grr: np.ndarray, Grm: np.ndarray, base: list[int], cols: list[in
     independent of the reference's (:func:`cross_gram` gives ``Grr``, ``Grm``):
     ``a_j = [F_rm^T F_rr^-1 F_rm]_jj / [F_rr]_jj`` under the square root, with ``F_rr``/``F_rm``
     the (cross-)information of ``cols`` after projecting out the baseline ``base``.
+
+    Args:
+        Grr, Grm: Gram and cross-Gram from :func:`cross_gram`.
+        base: baseline columns (projected out).
+        cols: the group's columns.
     """
     gbb = Grr[np.ix_(base, base)]
     sol = np.linalg.lstsq(gbb, np.concatenate([Grr[np.ix_(base, cols)], Grm[np.ix_(base, cols)]], 1), rcond=None)[0]
@@ -265,6 +372,13 @@ def block_score_inflation(S: System, base: list[int], cols: list[int], cur: list
     variance the data really show (cluster-robust), which misspecification on real data (reference
     errors, unmodelled colour) makes larger. With ``K`` blocks the ratio has about ``K - 1``
     degrees of freedom: a coarse, conservative factor for detectable sizes, not a test.
+
+    Args:
+        S: the whitened system.
+        base: baseline columns (projected out).
+        cols: the candidate's columns.
+        cur: columns of the current fit.
+        th: its solution on ``cur``.
     """
     G, g = S.G, S.g
     sc = g[:, cols] - G[:, cols][:, :, cur] @ th
@@ -281,19 +395,36 @@ def block_score_inflation(S: System, base: list[int], cols: list[int], cur: list
 
 @lru_cache(maxsize=None)
 def critical_value(level: float, dof: int) -> float:
-    """Chi-square critical value at ``level``."""
+    """Chi-square critical value at ``level``.
+
+    Args:
+        level: test level (upper-tail probability).
+        dof: degrees of freedom.
+    """
     return float(stats.chi2.isf(level, dof))
 
 
 @lru_cache(maxsize=None)
 def detectable_noncentrality(level: float, dof: int, power: float) -> float:
-    """Non-centrality ``lambda*`` with ``P(ncx2(dof, lambda*) > crit) = power``."""
+    """Non-centrality ``lambda*`` with ``P(ncx2(dof, lambda*) > crit) = power``.
+
+    Args:
+        level: test level.
+        dof: degrees of freedom.
+        power: detection probability.
+    """
     crit = critical_value(level, dof)
     return float(optimize.brentq(lambda lam: stats.ncx2.sf(crit, dof, lam) - power, 1e-6, 1e4))
 
 
 def minimum_detectable(F: np.ndarray, level: float, power: float) -> tuple[np.ndarray, float]:
-    """Per-component MDS ``sqrt(lambda*/F_jj)`` and the worst-direction MDS ``sqrt(lambda*/min eig F)``."""
+    """Per-component MDS ``sqrt(lambda*/F_jj)`` and the worst-direction MDS ``sqrt(lambda*/min eig F)``.
+
+    Args:
+        F: (p, p) Fisher information of the group.
+        level: test level.
+        power: detection probability.
+    """
     p = F.shape[0]
     lam = detectable_noncentrality(level, p, power)
     d = np.clip(np.diag(F), 1e-300, None)
@@ -302,7 +433,13 @@ def minimum_detectable(F: np.ndarray, level: float, power: float) -> tuple[np.nd
 
 
 def canonical_correlation(S: System, base: list[int], a: list[int], b: list[int]) -> float:
-    """Largest canonical correlation between two groups' regressors, baseline projected out."""
+    """Largest canonical correlation between two groups' regressors, baseline projected out.
+
+    Args:
+        S: the whitened system.
+        base: baseline columns (projected out).
+        a, b: the two groups' columns.
+    """
     F = projected_information(S, base, a + b)
     na = len(a)
     faa, fbb, fab = F[:na, :na], F[na:, na:], F[:na, na:]
@@ -324,6 +461,12 @@ def coarse_lag(y: np.ndarray, x: np.ndarray, rows: np.ndarray, max_lag: int) -> 
 
     Cross-correlations for every lag at once by FFT (zero-padded); the score sums over axes
     ``c_i(l)^2 / |x_i|^2`` (the variance a per-axis scale explains).
+
+    Args:
+        y: (N, C) sensor output.
+        x: (N, C) reference input.
+        rows: (N,) bool, valid rows.
+        max_lag: largest ``|l|`` tried (samples).
     """
     n = len(y)
     yc = np.where(rows[:, None], y - y[rows].mean(0), 0.0)
@@ -357,11 +500,15 @@ class Decision(NamedTuple):
 def cv_rss(S: System, cols: list[int], whitened: bool = True, fit: str = "gls", bias_cols: list[int] | None = None) -> float:
     """Leave-one-block-out held-out RSS: block ``k`` predicted by the fit on all other blocks.
 
-    ``whitened``: score the whitened (True) or physical residual. ``fit``: ``"gls"`` fits on the
-    whitened normal equations (the noise model's estimate), ``"ols"`` on the physical ones (least
-    squares on the very RSS that the physical score measures). ``bias_cols``: with a ``gls`` fit scored
-    on the physical residual, these bias columns are re-levelled on the training blocks
-    (:func:`_relevel`), as the final fit is."""
+    Args:
+        S: the system, per block.
+        cols: the columns in the model.
+        whitened: score the whitened (True) or physical residual.
+        fit: ``"gls"`` fits on the whitened normal equations (the noise model's estimate), ``"ols"``
+            on the physical ones (least squares on the very RSS that the physical score measures).
+        bias_cols: with a ``gls`` fit scored on the physical residual, these bias columns are
+            re-levelled on the training blocks (:func:`_relevel`), as the final fit is.
+    """
     if fit not in ("gls", "ols"):
         raise ValueError(f"fit must be 'gls' or 'ols', got {fit!r}")
     G, g, zz = (S.G, S.g, S.zz) if whitened else (S.Gu, S.gu, S.zzu)
@@ -401,7 +548,16 @@ def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselec
     score disagree, the noise model and the data disagree; the candidate is not named and its
     decision says so.
 
-    Returns ``(selected names in order, decisions {name: Decision}, solution on all blocks, cols)``.
+    Args:
+        S: the whitened system.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sensor: ``"acc"`` or ``"gyr"``.
+        cands: candidate effect names.
+        preselected: effects in the model from the start (e.g. a coarse time offset).
+        level: test level (Bonferroni-corrected).
+
+    Returns:
+        ``(selected names in order, decisions {name: Decision}, solution on all blocks, cols)``.
     """
     nb = E.N_BASE[kind]
     Ga, ga, zza = S.G_all, S.g_all, S.zz_all
@@ -456,7 +612,15 @@ def forward_select(S: System, kind: str, sensor: str, cands: list[str], preselec
 def heldout_rms_path(S: System, kind: str, sensor: str, order: list[str], fit: str = "gls") -> list[float]:
     """Cross-validated held-out RMS (physical units) as the effects of ``order`` are added;
     parameters fitted by ``fit`` (see :func:`cv_rss`; a ``gls`` fit has its biases re-levelled on
-    the training blocks' physical residual, as the final fit has)."""
+    the training blocks' physical residual, as the final fit has).
+
+    Args:
+        S: the whitened system.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sensor: ``"acc"`` or ``"gyr"``.
+        order: effect names, in the order they join.
+        fit: ``"gls"`` or ``"ols"`` (:func:`cv_rss`).
+    """
     nb = E.N_BASE[kind]
     cols = list(range(nb))
     out = []
@@ -483,7 +647,16 @@ def saturation_plateau(raw: np.ndarray | None) -> tuple[float, np.ndarray] | Non
 
 
 def saturation_stat(sd: SensorData, pred: np.ndarray, resid: np.ndarray, ars: list[ARModel], rows: np.ndarray, limit: float) -> float:
-    """Whitened RSS decrease when the prediction (physical) is clipped at ``+-limit`` LSB."""
+    """Whitened RSS decrease when the prediction (physical) is clipped at ``+-limit`` LSB.
+
+    Args:
+        sd: the sensor's prepared data.
+        pred: (N, 3) model prediction (physical units).
+        resid: (N, 3) residual of that prediction.
+        ars: per-axis noise models (3).
+        rows: (N,) bool, the rows used.
+        limit: clipping level (LSB).
+    """
     pred_raw = pred * sd.spec_scale + sd.spec_bias
     delta = (pred_raw - np.clip(pred_raw, -limit, limit)) / sd.spec_scale
     tot = 0.0
@@ -497,7 +670,16 @@ def saturation_stat(sd: SensorData, pred: np.ndarray, resid: np.ndarray, ars: li
 
 
 def saturation_mds(sd: SensorData, pred: np.ndarray, ars: list[ARModel], rows: np.ndarray, level: float, power: float) -> float:
-    """Clipping depth (LSB below the predicted peak) detectable with ``power`` (white approximation)."""
+    """Clipping depth (LSB below the predicted peak) detectable with ``power`` (white approximation).
+
+    Args:
+        sd: the sensor's prepared data.
+        pred: (N, 3) model prediction (physical units).
+        ars: per-axis noise models (3).
+        rows: (N,) bool, the rows used.
+        level: test level.
+        power: detection probability.
+    """
     lam = detectable_noncentrality(level, 1, power)
     pred_raw = pred * sd.spec_scale + sd.spec_bias
     peak = float(np.max(np.abs(pred_raw[rows])))

@@ -27,6 +27,23 @@ from typing import NamedTuple
 import numpy as np
 from scipy.signal import lfilter
 
+__all__ = [
+    "ORDERS",
+    "ARModel",
+    "row_ok",
+    "fill_index",
+    "gap_ok",
+    "LAMBDAS",
+    "local_level_gains",
+    "ll_innovations",
+    "reml_profile",
+    "theta_of",
+    "choose_lambda",
+    "fit_ar",
+    "apply_filter",
+    "ljung_box",
+]
+
 ORDERS = (0, 1, 2, 4, 8, 16, 32, 64)
 
 
@@ -79,7 +96,12 @@ def _ar_by_bic(u: np.ndarray, rows: np.ndarray, orders: list[int]) -> tuple[np.n
 
 
 def row_ok(valid: np.ndarray, p: int) -> np.ndarray:
-    """True at samples ``t`` whose whole filter window ``t-p .. t`` is valid."""
+    """True at samples ``t`` whose whole filter window ``t-p .. t`` is valid.
+
+    Args:
+        valid: (N,) bool.
+        p: filter order (window ``t-p .. t``).
+    """
     c = np.concatenate([[0], np.cumsum(~np.asarray(valid, bool))])
     n = len(valid)
     lo = np.maximum(np.arange(n) - p, 0)
@@ -99,7 +121,12 @@ def fill_index(valid: np.ndarray) -> np.ndarray:
 
 def gap_ok(valid: np.ndarray, memory: int) -> np.ndarray:
     """Valid samples not within ``memory`` samples after an interior gap (leading/trailing
-    invalid stretches are not gaps: held values make them harmless)."""
+    invalid stretches are not gaps: held values make them harmless).
+
+    Args:
+        valid: (N,) bool.
+        memory: samples a gap contaminates (:attr:`ARModel.memory`).
+    """
     valid = np.asarray(valid, bool)
     if not valid.any():
         return valid
@@ -126,6 +153,10 @@ def local_level_gains(lam: float, n: int) -> tuple[np.ndarray, np.ndarray]:
 
     ``lam = 0`` (no random walk) gives ``K_t = 1/(t+1)``, ``sf_t^2 = 1 + 1/t``: the recursive
     residuals of a constant mean. The gains converge to ``1 - theta`` of the IMA(1,1) form.
+
+    Args:
+        lam: random-walk to white variance ratio per sample.
+        n: number of samples.
     """
     K = np.empty(n)
     F = np.empty(n)
@@ -153,6 +184,10 @@ def ll_innovations(x: np.ndarray, lam: float) -> np.ndarray:
 
     The level recursion ``m_{t+1} = (1 - K_t) m_t + K_t x_t`` (``m_1 = x_0``) is evaluated in closed
     form (cumulative products) while the gain still varies, then by ``lfilter`` once it is constant.
+
+    Args:
+        x: (N, ...) series, filtered along axis 0.
+        lam: random-walk to white variance ratio per sample.
     """
     x = np.asarray(x, np.float64)
     n = x.shape[0]
@@ -208,6 +243,13 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
     random walk and shrinking its estimate, which made ordinary (or residual-based) estimates
     call drift significant on pure random-walk noise. Returns (len(lams),); all ``-inf`` when
     there are too few rows.
+
+    Args:
+        e: (N,) residual.
+        valid: (N,) bool, usable samples.
+        X: (N, Q) regressors to be tested; None: none.
+        lams: random-walk levels of the profile.
+        max_order: largest AR order.
     """
     e = np.asarray(e, np.float64)
     n = len(e)
@@ -263,6 +305,12 @@ def choose_lambda(profiles: list[np.ndarray], lams=LAMBDAS, pooled: bool = True,
     within ``slack`` of the maximum (the upper end of a profile-likelihood interval; 1.92 is
     about 95 %), a conservative choice for tests of slow effects that a random walk can mimic
     (Berger-Boos: the p-value is maximised over the plausible noise levels).
+
+    Args:
+        profiles: per-axis profiles from :func:`reml_profile`, each (len(lams),).
+        lams: the levels they were evaluated at.
+        pooled: one level for all axes (see above).
+        slack: log-likelihood slack (see above); 0 takes the maximum.
     """
     lams = np.asarray(lams)
 
@@ -314,13 +362,23 @@ def _stage1(x: np.ndarray, lam: float) -> np.ndarray:
 
 def apply_filter(x: np.ndarray, ar: ARModel) -> np.ndarray:
     """Whiten an (N, ...) array along axis 0: random-walk stage (:func:`ll_innovations`), then
-    ``(v_t - sum_k a_k v_{t-k}) / sigma``."""
+    ``(v_t - sum_k a_k v_{t-k}) / sigma``.
+
+    Args:
+        x: (N, ...) array, filtered along axis 0.
+        ar: the axis's noise model.
+    """
     b = np.concatenate([[1.0], -ar.a])
     return lfilter(b, 1.0, _stage1(x, ar.lam), axis=0) / ar.sigma
 
 
 def ljung_box(u: np.ndarray, lags: int = 20) -> float:
-    """Ljung-Box Q statistic of a residual series (chi2 with ``lags`` dof if white)."""
+    """Ljung-Box Q statistic of a residual series (chi2 with ``lags`` dof if white).
+
+    Args:
+        u: (N,) residual series.
+        lags: autocorrelation lags summed.
+    """
     u = np.asarray(u, np.float64) - np.mean(u)
     n = len(u)
     den = float(u @ u) + 1e-300
