@@ -22,6 +22,7 @@ from jaxcal.arrays import Array
 __all__ = [
     "PyTree",
     "LossFn",
+    "ValueAndGradFn",
     "TrainConfig",
     "TrainResult",
     "fit_full_batch",
@@ -29,6 +30,7 @@ __all__ = [
 
 PyTree = Any
 LossFn = Callable[[PyTree, Any], Float[Array, ""]]
+ValueAndGradFn = Callable[[PyTree, Any], tuple[Float[Array, ""], PyTree]]
 
 
 class TrainConfig(NamedTuple):
@@ -38,11 +40,15 @@ class TrainConfig(NamedTuple):
         learning_rate: Adam step size.
         patience: epochs without validation improvement before stopping.
         min_delta: improvement (absolute, in loss units) that counts as one.
+        min_rel_delta: improvement relative to the best validation loss that counts as one
+            (``1e-3``: the loss must fall by 0.1 %); combined with ``min_delta``, a new loss counts
+            when ``val < best * (1 - min_rel_delta) - min_delta``.
     """
 
     learning_rate: float | Float[Array, ""] = 1e-3
     patience: int | Int[Array, ""] = 200
     min_delta: float | Float[Array, ""] = 0.0
+    min_rel_delta: float | Float[Array, ""] = 0.0
 
 
 class TrainResult(NamedTuple):
@@ -66,6 +72,7 @@ def fit_full_batch(
     val_data: Any,
     config: TrainConfig,
     max_epochs: int,
+    value_and_grad: ValueAndGradFn | None = None,
 ) -> TrainResult:
     """Train ``params`` with full-batch Adam until the validation loss stops improving.
 
@@ -76,12 +83,16 @@ def fit_full_batch(
         val_data: passed to ``loss_fn`` for early stopping.
         config: :class:`TrainConfig` (fields may be traced, so trainings vmap over them).
         max_epochs: hard cap on epochs (static: it sizes the loss histories).
+        value_and_grad: ``(params, train_data) -> (loss, grads)`` of ``loss_fn`` computed another
+            way (e.g. :func:`jaxcal.nn.row_chunked_value_and_grad`, which streams the rows in
+            cache-sized blocks); ``None``: ``jax.value_and_grad(loss_fn)``.
 
     Returns:
         :class:`TrainResult` with the best-validation parameters.
     """
     opt = optax.adam(config.learning_rate)
-    value_and_grad = jax.value_and_grad(loss_fn)
+    if value_and_grad is None:
+        value_and_grad = jax.value_and_grad(loss_fn)
     nan_hist = jnp.full((max_epochs,), jnp.nan, dtype=jnp.float32)
 
     def cond(carry):
@@ -94,7 +105,7 @@ def fit_full_batch(
         updates, opt_state = opt.update(grads, opt_state, params)
         params = optax.apply_updates(params, updates)
         val = loss_fn(params, val_data)
-        improved = val < best_val - config.min_delta
+        improved = val < best_val * (1.0 - config.min_rel_delta) - config.min_delta
         best_params = jax.tree.map(lambda n, o: jnp.where(improved, n, o), params, best_params)
         best_val = jnp.where(improved, val, best_val)
         best_epoch = jnp.where(improved, epoch, best_epoch)

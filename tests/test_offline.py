@@ -13,7 +13,7 @@ from jaxcal.linear import fit_affine
 from jaxcal.metrics import euclidean_error
 from jaxcal.nn import MLP
 from jaxcal.normalise import bounds_from_spec
-from jaxcal.offline import NNTrainSpec, linear_calibrate_subsets, nn_calibrate_subsets
+from jaxcal.offline import ADAM_FROM_RANDOM, NNTrainSpec, linear_calibrate_subsets, nn_calibrate_subsets
 from jaxcal.simulate import Dataset1Config, dataset1
 from jaxcal.simulate.dataset1 import (
     ACC_RANGE_G,
@@ -148,14 +148,54 @@ def _nn_vs_linear(d1, widths, spec):
 
 
 def test_narrow_nn_learns_the_nonlinearity_fast(d1):
-    """Fast stand-in for the thesis's shape at l = 1000: a 256-unit NN beats the linear model by
-    the thesis's margin (NN <= 0.6 x linear) on the nonlinear surrogate."""
-    nn, lin = _nn_vs_linear(d1, (256,), NNTrainSpec(3e-2, 3e-2, 20000, 20000))
+    """Fast stand-in for the thesis's shape at l = 1000: a 1024-unit NN with the default recipe (ridge
+    warm start, Adam, early stopping) beats the linear model by the thesis's margin (NN <= 0.6 x
+    linear) on the nonlinear surrogate (measured 0.48-0.50x over init keys 0-4, early-stopped after
+    1758-3535 epochs; 256 units reach 0.54-0.57x only at the 5000-epoch cap, too close to call)."""
+    nn, lin = _nn_vs_linear(d1, (1024,), NNTrainSpec())
     assert nn <= 0.6 * lin
 
 
 @pytest.mark.slow
-def test_thesis_nn_halves_linear_error_at_l1000(d1):
-    """The thesis's NN (7500 leaky-ReLU units, default training) at l = 1000: NN <= 0.6 x linear."""
-    nn, lin = _nn_vs_linear(d1, (7500,), NNTrainSpec())
+def test_thesis_nn_from_random_init_halves_linear_error_at_l1000(d1):
+    """The previous recipe (Adam 2e-2 from the random initialisation, ~18000 epochs: 6 min on 2 CPU
+    cores) still reaches the thesis's halving at l = 1000: NN <= 0.6 x linear (measured 0.45x)."""
+    nn, lin = _nn_vs_linear(d1, (7500,), ADAM_FROM_RANDOM)
     assert nn <= 0.6 * lin
+
+
+def test_exact_rows_train_as_the_padded_weight_rows(x64, d1):
+    """Training on exactly the l rows (the fast path) is the same optimisation as the old padded path
+    (1000 rows, 0/1 weights): identical Adam trajectories in float64 (measured 1e-13 relative)."""
+    from jaxcal.offline import nn_calibrate_rows
+
+    mlp = MLP((32,))
+    bounds = bounds_from_spec(d1.spec, ACC_RANGE_G)
+    f64 = lambda a: jnp.asarray(a, jnp.float64)  # noqa: E731
+    y, x = f64(d1.train.acc), f64(d1.train.acc_ref)
+    val, y_te = (f64(d1.val.acc), f64(d1.val.acc_ref)), f64(d1.test.acc)
+    spec = NNTrainSpec(lr_init=1e-3, lr_final=1e-3, patience=31, max_epochs=30, min_rel_delta=0.0, warm_start=False,
+                       row_chunk=None)
+    w = jnp.zeros((1, 1000), jnp.float64).at[0, :50].set(1.0)
+    padded, ep_p, _ = nn_calibrate_subsets(jax.random.PRNGKey(3), mlp, bounds, (y, x), w, val, y_te, spec)
+    exact, ep_e, _ = nn_calibrate_rows(jax.random.PRNGKey(3), mlp, bounds, (y[:50], x[:50]), val, y_te, spec)
+    assert int(ep_p[0]) == int(ep_e) == 30
+    np.testing.assert_allclose(exact, padded[0], rtol=1e-9, atol=1e-12)
+
+
+def test_residual_nn_falls_back_to_the_linear_model_on_a_linear_sensor(d1):
+    """On a purely affine sensor there is nothing for the residual network to learn: the affine + NN
+    residual model scores as the linear model does (measured within 1 %), at l = 18 and 400."""
+    from jaxcal.offline import residual_nn_calibrate_rows
+
+    cfg = Dataset1Config(k2=(0.0, 0.0, 0.0), k3=(0.0, 0.0, 0.0), cross=((0.0,) * 3,) * 3)
+    d = dataset1(jax.random.PRNGKey(5), cfg)
+    bounds = bounds_from_spec(d.spec, ACC_RANGE_G)
+    for l in (18, 400):
+        y, x = d.train.acc[:l], d.train.acc_ref[:l]
+        res, _, _ = jax.jit(lambda k, y, x: residual_nn_calibrate_rows(
+            k, MLP((64,)), bounds, (y, x), (d.val.acc, d.val.acc_ref), d.test.acc, NNTrainSpec()))(jax.random.PRNGKey(0), y, x)
+        lin = linear_calibrate_subsets(y, x, jnp.ones((1, l)), d.test.acc)[0]
+        e_res = float(euclidean_error(d.test.acc_ref, res).mean())
+        e_lin = float(euclidean_error(d.test.acc_ref, lin).mean())
+        assert e_res <= 1.05 * e_lin, (l, e_res, e_lin)
