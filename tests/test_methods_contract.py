@@ -27,7 +27,7 @@ import toy_method
 
 from jaxcal import methods
 from jaxcal.cli import main
-from jaxcal.methods import LinearOptions, ModelError, MultiposOptions, NNOptions, OnlineOptions, OnlineThesisOptions
+from jaxcal.methods import CubicOptions, LinearOptions, ModelError, MultiposOptions, NNOptions, OnlineOptions, OnlineThesisOptions
 from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import Recording
 from jaxcal.simulate import Dataset2Config
@@ -62,6 +62,7 @@ class Case(NamedTuple):
 
 CASES: dict[str, Case] = {
     "linear": Case(lambda: _dataset2(True), LinearOptions(), needle="needs reference labels"),
+    "cubic": Case(lambda: _dataset2(True), CubicOptions(), needle="needs reference labels"),
     "nn": Case(lambda: _dataset2(True), NNOptions(widths=(8,), max_epochs=30, patience=10),
                needle="needs reference labels"),
     "online": Case(lambda: _dataset2(False), OnlineOptions(), lambda r: r.replace(seq=None), "needs 'seq' ids"),

@@ -6,6 +6,8 @@ options):
 
 * ``linear`` (:mod:`~jaxcal.methods.linear`, :class:`LinearOptions`): thesis eq. 3.1-3.5; labels.
 * ``nn`` (:mod:`~jaxcal.methods.nn`, :class:`NNOptions`): thesis section 3.3; labels.
+* ``cubic`` (:mod:`~jaxcal.methods.cubic`, :class:`CubicOptions`): the cubic polynomial of thesis
+  section 2.1.2; labels.
 * ``online-thesis`` (:mod:`~jaxcal.methods.online_thesis`, :class:`OnlineThesisOptions`): thesis
   chapter 4 as published; ``seq`` ids and datasheet values.
 * ``online`` (:mod:`~jaxcal.methods.online`, :class:`OnlineOptions`): streaming self-calibration;
@@ -35,8 +37,9 @@ from flax import serialization
 from flax.errors import FlaxError
 
 from jaxcal.constants import SENSORS
-from jaxcal.methods import linear, multipos, nn, online, online_thesis
+from jaxcal.methods import cubic, linear, multipos, nn, online, online_thesis
 from jaxcal.methods.base import Fitted, Log, Method, ModelError, units
+from jaxcal.methods.cubic import CubicOptions
 from jaxcal.methods.linear import LinearOptions
 from jaxcal.methods.multipos import MultiposOptions
 from jaxcal.methods.nn import NNOptions
@@ -47,6 +50,7 @@ from jaxcal.recording import Recording
 __all__ = [
     "REGISTRY",
     "CalibrationModel",
+    "CubicOptions",
     "Fitted",
     "LinearOptions",
     "Method",
@@ -209,3 +213,4 @@ register(nn.METHOD)
 register(online_thesis.METHOD)
 register(online.METHOD)
 register(multipos.METHOD)
+register(cubic.METHOD)
