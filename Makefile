@@ -16,7 +16,7 @@ export MPLBACKEND := Agg
 # numpy's BLAS threads only contend with XLA's on 2 cores (small products slow down 1000x under load).
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: install lock run run-full lint test test-all test-latest margins clean
+.PHONY: install lock run run-full run-real lint test test-all test-latest margins clean
 
 install: $(STAMP)
 
@@ -35,13 +35,17 @@ lock:
 	  .venv-lock/bin/python -m pip freeze --exclude jaxcal; } > $(LOCK).tmp && mv $(LOCK).tmp $(LOCK)
 	rm -rf .venv-lock
 
-## The main job on built-in defaults: thesis reproduction, quick form -> results/
+## The main job on built-in defaults: thesis chapters 3-4 (and beyond), 2 seeds -> results/*_quick.* (git-ignored)
 run: $(STAMP)
 	$(BIN)/python -m experiments.run_all --quick
 
-## The full-size reproduction (all seeds, full sweeps); takes much longer.
+## The complete chapter 3-4 reproduction: Table 3.1 (8 sizes x 5 seeds), Tables 4.1-4.2 (5 seeds), all figures
 run-full: $(STAMP)
 	$(BIN)/python -m experiments.run_all
+
+## Public recordings and `jaxcal diagnose` (quick forms; the full forms: each script without --quick)
+run-real: $(STAMP)
+	$(BIN)/python -m experiments.run_all --group real --quick
 
 ## Lint (pyflakes, pycodestyle errors, import order; config in pyproject.toml): a second of work, run first by `make test`.
 lint: $(STAMP)
