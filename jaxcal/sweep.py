@@ -1,19 +1,35 @@
 """Hyperparameter sweeps as one vmapped, jitted, sharded call per compile-compatible group.
 
-A :class:`SweepSpec` names a target (``"online-thesis"``: the thesis's online algorithm on simulated
-Dataset 2, :mod:`jaxcal.online_thesis`), a grid (name -> values) and/or a random search (name ->
-``(lo, hi, "log" | "lin")``, ``n_random`` samples drawn with ``random_seed``), fixed overrides, the
-seeds and the dataset settings. :func:`expand` lists every configuration (grid x random samples x
-seeds); :func:`plan` splits them into **groups** whose configurations share every *static* field
-(fields that set shapes or Python control flow, e.g. ``init_every`` or ``dataset.n_train``: a
-change recompiles) and stacks the *traced* fields (learning rates, steps, ``w``, initial scales,
-seeds): each group (or each batch of at most ``batch_size`` of its configurations, padded to the
-same size so they share one compilation) is ONE ``jax.jit(jax.vmap(...))`` call.
+A :class:`SweepSpec` names a target (:data:`TARGETS`), a grid (name -> values) and/or a random
+search (name -> ``(lo, hi, "log" | "lin")``, ``n_random`` samples drawn with ``random_seed``),
+fixed overrides, the seeds and the dataset settings. :func:`expand` lists every configuration
+(grid x random samples x seeds); :func:`plan` splits them into **groups** whose configurations
+share every *static* field (fields that set shapes or Python control flow, e.g. ``init_every``,
+``dataset.n_train`` or the subset size ``l``: a change recompiles) and stacks the *traced* fields
+(learning rates, steps, ``w``, patience, seeds): each group (or each batch of at most
+``batch_size`` of its configurations, padded to the same size so they share one compilation) is
+ONE ``jax.jit(jax.vmap(...))`` call.
+
+**Targets.**
+
+- ``"online-thesis"``: the thesis's online algorithm (chapter 4, :mod:`jaxcal.online_thesis`) on
+  simulated Dataset 2. Seed ``s`` draws its dataset from ``PRNGKey(s)`` and its initial weights
+  from :func:`weights_key` ``(s)``.
+- ``"offline-nn"``: the thesis's chapter-3 NN (one hidden layer, :func:`jaxcal.nn.fit_nn`) and,
+  as the reference, the 12-parameter linear model (:func:`jaxcal.linear.fit_affine`), each trained
+  on exactly ``l`` rows of the fixed Dataset 1 surrogate ``dataset1(PRNGKey(0))`` (1000 train /
+  184 val / 184 test; no dataset settings). Seed ``s`` draws the NN's initial weights and which
+  ``l`` training rows are used from :func:`offline_seed_keys` ``(s)``, the keys of
+  ``experiments/offline.py`` for ``s < 5``.
+
+Each target brings its own batch runner (:attr:`Target.prepare`), unvmapped reference
+(:attr:`Target.run_one`), metric columns and report wording, so the sweep machinery below
+(grouping, sharding, checkpoints, the table and heatmap) is shared.
 
 **Sharding.** The stacked configuration axis is laid on a ``jax.sharding.Mesh`` over the devices
 (default: all local devices) with ``NamedSharding(mesh, P("configs"))``; the axis is padded to a
 multiple of the device count (repeating the last configuration) and the padding dropped after.
-The datasets (one per seed) are replicated. The same call therefore uses every GPU of a node, or
+The data (one copy per seed) are replicated. The same call therefore uses every GPU of a node, or
 the ``--xla_force_host_platform_device_count=N`` CPU devices of a test. On a multi-host cluster,
 call ``jax.distributed.initialize()`` in every process first (same spec everywhere) and pass
 ``devices=jax.devices()`` (the global devices): every process builds the same inputs, each device
@@ -26,15 +42,13 @@ computes its shard, and the results are gathered with
 ``resume=True`` skips the batches already there. Each batch is deterministic and keeps its size, so
 a killed run resumed gives exactly the rows of an uninterrupted one.
 
-**Per-configuration randomness.** Seed ``s`` draws its dataset from ``PRNGKey(s)`` and its initial
-weights from :func:`weights_key` ``(s)``, as :func:`run_one` does for a single configuration.
-
 I/O happens only in :func:`load_sweep_spec`, :func:`write_sweep` and in :func:`run_sweep` when it
 is given ``out_dir`` (the checkpoint); progress lines go through the ``log`` callable (default: none).
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
@@ -52,19 +66,31 @@ from jax.sharding import Mesh, NamedSharding
 from jax.sharding import PartitionSpec as P
 
 from jaxcal import online_thesis as ot
+from jaxcal.constants import ACC_RANGE_G
+from jaxcal.linear import fit_affine
+from jaxcal.metrics import euclidean_error
+from jaxcal.nn import MLP, THESIS_LEAKY_SLOPE, THESIS_OFFLINE_WIDTHS, fit_nn, nn_calibrate
+from jaxcal.normalise import bounds_from_spec
+from jaxcal.offline import NNTrainSpec, nn_calibrate_rows
 from jaxcal.recording import atomic_output
+from jaxcal.sensor import affine_inverse
+from jaxcal.simulate.dataset1 import Dataset1Config, dataset1, nested_subset_weights
 from jaxcal.simulate.dataset2 import Dataset2Config, dataset2
+from jaxcal.train import TrainConfig
 
 __all__ = [
     "CHECKPOINT",
+    "OFFLINE_DATASET_KEY",
     "TARGETS",
     "Batch",
+    "Prepared",
     "SweepResult",
     "SweepSpec",
     "Target",
     "check_spec",
     "expand",
     "load_sweep_spec",
+    "offline_seed_keys",
     "plan",
     "run_one",
     "run_sweep",
@@ -78,50 +104,76 @@ CHECKPOINT = "checkpoint.json"
 _DATASET_PREFIX = "dataset."
 
 
-class Target(NamedTuple):
-    """What a sweep can tune and how one configuration's fields are split.
+class Prepared(NamedTuple):
+    """One batch made ready by a target (:attr:`Target.prepare`) for the shared, sharded call.
 
     Attributes:
-        name: the target's name in a spec (``"online-thesis"``).
+        fn: ``fn(shared, per_config) -> {metric: (n,) array}``, jitted (its static settings bound).
+        shared: pytree replicated on every device (the data, one copy per seed).
+        per_config: pytree whose leaves have the configuration axis first (sharded).
+    """
+
+    fn: Callable[[Any, Any], dict[str, jax.Array]]
+    shared: Any
+    per_config: Any
+
+
+class Target(NamedTuple):
+    """What a sweep can tune, how one configuration's fields are split, and how a batch runs.
+
+    Attributes:
+        name: the target's name in a spec (``"online-thesis"``, ``"offline-nn"``).
         traced: hyperparameters stacked along the configuration axis (vmapped).
         static: hyperparameters that set shapes or control flow (a group key: a change recompiles);
-            ``dataset.<field>`` of :class:`~jaxcal.simulate.Dataset2Config` are static too.
+            ``dataset.<field>`` of the target's dataset settings are static too.
         ints: the names whose values are integers (random samples are rounded).
+        bools: the names whose values are ``true`` / ``false``.
+        ranges: name -> ``(lo, hi, lo_open)``: the values allowed (``lo_open``: ``lo`` itself is not).
         defaults: every hyperparameter's default value.
+        dataset: the default dataset settings (a config NamedTuple of scalar fields), or ``None``
+            for a fixed dataset without settings.
+        metrics: ``(row key, table heading)`` of the markdown table's metric columns.
+        heatmap_metrics: the two row keys of the heatmap's panes.
+        best: ``(row key, phrase, unit)``: the report names the configuration lowest in each.
+        best_context: ``(row key, phrase, unit)`` also quoted for each best configuration.
+        describe: ``describe(spec) -> str``, the report's words on the data.
+        prepare: ``prepare(spec, group key, configs) -> Prepared``: one batch's inputs.
+        run_one: ``run_one(spec, config) -> {metric: value}``: one configuration without vmap or
+            sharding (the reference :func:`run_sweep` matches).
     """
 
     name: str
     traced: tuple[str, ...]
     static: tuple[str, ...]
     ints: tuple[str, ...]
+    bools: tuple[str, ...]
+    ranges: dict[str, tuple[float, float, bool]]
     defaults: dict[str, Any]
-
-
-_OT_TRACED = tuple(f for f in ot.OnlineThesisHParams._fields if f != "key")
-TARGETS: dict[str, Target] = {
-    "online-thesis": Target(
-        name="online-thesis",
-        traced=_OT_TRACED,
-        static=("init_every",),
-        ints=("init_epochs", "gyr_steps", "acc_steps", "init_every"),
-        defaults={**{f: ot.OnlineThesisHParams._field_defaults[f] for f in _OT_TRACED}, "init_every": ot.INIT_EVERY},
-    ),
-}
+    dataset: Any
+    metrics: tuple[tuple[str, str], ...]
+    heatmap_metrics: tuple[str, str]
+    best: tuple[tuple[str, str, str], ...]
+    best_context: tuple[tuple[str, str, str], ...]
+    describe: Callable[[Any], str]
+    prepare: Callable[[Any, tuple, list[dict[str, Any]]], Prepared]
+    run_one: Callable[[Any, dict[str, Any]], dict[str, Any]]
 
 
 class SweepSpec(NamedTuple):
     """A sweep (plain Python values; the whole spec is static: it decides the groups).
 
     Attributes:
-        target: a key of :data:`TARGETS` (``"online-thesis"``).
+        target: a key of :data:`TARGETS` (``"online-thesis"`` or ``"offline-nn"``).
         grid: name -> list of values; the configurations are the Cartesian product.
         random: name -> ``(lo, hi, "log" | "lin")``; ``n_random`` samples, each joined with every
             grid point.
         n_random: number of random samples (0: no random search).
         random_seed: seed of the random search (numpy ``default_rng``).
         fixed: name -> value overriding a default for every configuration.
-        seeds: per-configuration seeds (dataset and initial weights; see the module docstring).
-        dataset: the Dataset 2 settings (``dataset.<field>`` in ``grid`` overrides them per group).
+        seeds: per-configuration seeds (data and initial weights; see the module docstring).
+        dataset: the dataset settings (online-thesis: a :class:`~jaxcal.simulate.Dataset2Config`;
+            ``dataset.<field>`` in ``grid`` overrides them per group); ``None``: the target's
+            default (offline-nn has no dataset settings: ``None`` only).
         heatmap: the two swept names of the heatmap (``()``: the first two swept names).
         batch_size: at most this many configurations per call (0: a whole group per call); smaller
             batches checkpoint more often.
@@ -134,7 +186,7 @@ class SweepSpec(NamedTuple):
     random_seed: int = 0
     fixed: dict[str, Any] = {}  # noqa: RUF012
     seeds: tuple[int, ...] = (0,)
-    dataset: Dataset2Config = Dataset2Config()
+    dataset: Any = None
     heatmap: tuple[str, ...] = ()
     batch_size: int = 0
 
@@ -145,11 +197,9 @@ class SweepResult(NamedTuple):
     Attributes:
         spec: the sweep.
         names: the swept names (grid, then random), the table's configuration columns.
-        rows: one dict per configuration and seed: ``group``, the swept names, ``seed``, the test
-            errors ``test_acc_mg`` / ``test_gyr_mrads`` (mean Euclidean error, eq. 3.8, after the
-            whole algorithm), the same after the initial training (``init_test_*``), the validation
-            errors of eq. 4.14 after the last sequence (``val_e_*_final``) and averaged over the
-            last 50 sequences (``val_e_*_last50``), and the initial-training losses.
+        rows: one dict per configuration and seed: ``group``, the swept names, ``seed`` and the
+            target's metrics (online-thesis: :func:`_ot_metrics`; offline-nn:
+            :func:`_offline_metrics`).
         timing: seconds per batch (``batches``) and in all (``total_s``); not part of the result
             proper (a resumed run differs only here).
     """
@@ -171,32 +221,52 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
+def _interval(lo: float | int, hi: float | int, lo_open: bool) -> str:
+    if math.isinf(hi):
+        return f"{'>' if lo_open else '>='} {lo:g}"
+    return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}]"
+
+
+def _dataset_defaults(target: Target) -> dict[str, Any]:
+    return {} if target.dataset is None else target.dataset._asdict()
+
+
 def _check_value(target: Target, name: str, v: Any, where: str) -> None:
     if name.startswith(_DATASET_PREFIX):
-        field = name[len(_DATASET_PREFIX):]
-        default = Dataset2Config._field_defaults[field]
+        default = _dataset_defaults(target)[name[len(_DATASET_PREFIX):]]
         if isinstance(default, bool) and isinstance(v, bool):
             return
         if not _is_number(v) or (isinstance(default, int) and (int(v) != v or v < 1)):
             _fail(f"{where}: {name} = {v!r} is not a valid {type(default).__name__}")
         return
+    if name in target.bools:
+        if not isinstance(v, bool):
+            _fail(f"{where}: {name} = {v!r} must be true or false")
+        return
     if not _is_number(v):
         _fail(f"{where}: {name} = {v!r} is not a finite number")
-    if name in target.ints and (int(v) != v or v < (1 if name == "init_every" else 0)):
-        _fail(f"{where}: {name} = {v!r} must be a non-negative integer")
-    if name == "w" and not 0.0 <= v <= 1.0:
-        _fail(f"{where}: w = {v!r} must lie in [0, 1]")
-    if name.endswith("_lr") and v <= 0:
-        _fail(f"{where}: {name} = {v!r} must be positive")
+    if name in target.ints and int(v) != v:
+        _fail(f"{where}: {name} = {v!r} must be an integer")
+    if name in target.ranges:
+        lo, hi, lo_open = target.ranges[name]
+        if not ((lo < v if lo_open else lo <= v) and v <= hi):
+            _fail(f"{where}: {name} = {v!r} must be {_interval(lo, hi, lo_open)}")
 
 
 def _check_name(target: Target, name: str, where: str) -> None:
     if name.startswith(_DATASET_PREFIX):
-        if name[len(_DATASET_PREFIX):] not in Dataset2Config._fields:
-            _fail(f"{where}: unknown dataset field {name!r}; known: {', '.join(Dataset2Config._fields)}")
+        if target.dataset is None:
+            _fail(f"{where}: target {target.name} has no dataset settings ({name!r})")
+        if name[len(_DATASET_PREFIX):] not in target.dataset._fields:
+            _fail(f"{where}: unknown dataset field {name!r}; known: {', '.join(target.dataset._fields)}")
         return
     if name not in target.defaults:
         _fail(f"{where}: unknown hyperparameter {name!r} for target {target.name}; known: {', '.join(target.defaults)}")
+
+
+def _dataset(spec: SweepSpec, target: Target) -> Any:
+    """The spec's dataset settings (the target's default when ``spec.dataset`` is ``None``)."""
+    return target.dataset if spec.dataset is None else spec.dataset
 
 
 def check_spec(spec: SweepSpec) -> Target:
@@ -218,6 +288,8 @@ def check_spec(spec: SweepSpec) -> Target:
         _check_name(t, name, "sweep spec random")
         if name.startswith(_DATASET_PREFIX) or name in t.static:
             _fail(f"sweep spec random: {name} is static (it sets shapes); put it in the grid")
+        if name in t.bools:
+            _fail(f"sweep spec random: {name} is true/false; put it in the grid")
         if name in spec.grid:
             _fail(f"sweep spec random: {name} is also in the grid")
         if not (isinstance(rng, (list, tuple)) and len(rng) == 3 and rng[2] in ("log", "lin")):
@@ -243,8 +315,14 @@ def check_spec(spec: SweepSpec) -> Target:
     swept = (*spec.grid, *spec.random)
     if spec.heatmap and (len(spec.heatmap) != 2 or any(h not in swept for h in spec.heatmap)):
         _fail(f"sweep spec heatmap: expected two of the swept names {list(swept)}, got {list(spec.heatmap)!r}")
-    for f, v in spec.dataset._asdict().items():
-        _check_value(t, _DATASET_PREFIX + f, v, "sweep spec dataset")
+    if t.dataset is None:
+        if spec.dataset is not None:
+            _fail(f"sweep spec dataset: target {t.name} uses a fixed dataset and has no dataset settings")
+    else:
+        if not isinstance(spec.dataset, (type(t.dataset), type(None))):
+            _fail(f"sweep spec dataset: expected a {type(t.dataset).__name__} for target {t.name}")
+        for f, v in _dataset(spec, t)._asdict().items():
+            _check_value(t, _DATASET_PREFIX + f, v, "sweep spec dataset")
     return t
 
 
@@ -253,8 +331,9 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
 
     Args:
         d: ``{"target", "grid", "random": {"n", "seed", "params": {name: [lo, hi, scale]}},
-            "fixed", "seeds", "dataset": {Dataset2Config field: value}, "heatmap", "batch_size"}``;
-            every key but ``target`` optional.
+            "fixed", "seeds", "dataset": {dataset field: value}, "heatmap", "batch_size"}``; every
+            key optional (``target``: ``"online-thesis"``; ``dataset`` must be absent or ``{}`` for
+            a target without dataset settings).
     """
     if not isinstance(d, dict):
         _fail("sweep spec: expected a JSON object")
@@ -269,8 +348,13 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
         _fail(f"sweep spec random: unknown key(s) {', '.join(map(repr, extra))}; known: n, seed, params")
     if not isinstance(rnd.get("params", {}), dict):
         _fail("sweep spec random params: expected an object")
-    ds = d.get("dataset", {})
-    if bad := sorted(set(ds) - set(Dataset2Config._fields)):
+    target = d.get("target", "online-thesis")
+    if not isinstance(target, str) or target not in TARGETS:
+        _fail(f"sweep spec: unknown target {target!r}; known: {', '.join(TARGETS)}")
+    ds, ds0 = d.get("dataset", {}), TARGETS[target].dataset
+    if ds0 is None and ds:
+        _fail(f"sweep spec dataset: target {target} uses a fixed dataset and has no dataset settings")
+    if ds0 is not None and (bad := sorted(set(ds) - set(ds0._fields))):
         _fail(f"sweep spec dataset: unknown field(s) {', '.join(map(repr, bad))}")
     seeds = d.get("seeds", [0])
     if not isinstance(seeds, list):
@@ -280,14 +364,14 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
         if not isinstance(v, int) or isinstance(v, bool) or v < 0:
             _fail(f"sweep spec random {k}: expected an integer >= 0, got {v!r}")
     spec = SweepSpec(
-        target=d.get("target", "online-thesis"),
+        target=target,
         grid={k: list(v) if isinstance(v, list) else v for k, v in d.get("grid", {}).items()},
         random={k: tuple(v) if isinstance(v, list) else v for k, v in rnd.get("params", {}).items()},
         n_random=n_random,
         random_seed=random_seed,
         fixed=dict(d.get("fixed", {})),
         seeds=tuple(seeds),
-        dataset=Dataset2Config()._replace(**ds),
+        dataset=None if ds0 is None else ds0._replace(**ds),
         heatmap=tuple(d.get("heatmap", ())),
         batch_size=d.get("batch_size", 0),
     )
@@ -297,13 +381,14 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
 
 def spec_to_dict(spec: SweepSpec) -> dict[str, Any]:
     """The JSON form of a spec (inverse of :func:`spec_from_dict`)."""
+    ds = _dataset(spec, TARGETS[spec.target]) if spec.target in TARGETS else spec.dataset
     return {
         "target": spec.target,
         "grid": {k: list(v) for k, v in spec.grid.items()},
         "random": {"n": spec.n_random, "seed": spec.random_seed, "params": {k: list(v) for k, v in spec.random.items()}},
         "fixed": dict(spec.fixed),
         "seeds": list(spec.seeds),
-        "dataset": spec.dataset._asdict(),
+        "dataset": {} if ds is None else ds._asdict(),
         "heatmap": list(spec.heatmap),
         "batch_size": spec.batch_size,
     }
@@ -416,9 +501,12 @@ def plan(spec: SweepSpec) -> list[Batch]:
 
 # ----------------------------------------------------------------------------- online-thesis
 
+_OT_TRACED = tuple(f for f in ot.OnlineThesisHParams._fields if f != "key")
+_OT_INTS = ("init_epochs", "gyr_steps", "acc_steps", "init_every")
+
 
 def weights_key(seed: int) -> jax.Array:
-    """The PRNG key of the initial weights of seed ``seed`` (its dataset uses ``PRNGKey(seed)``).
+    """The PRNG key of the initial weights of online-thesis seed ``seed`` (its dataset uses ``PRNGKey(seed)``).
 
     Args:
         seed: the configuration's seed.
@@ -426,8 +514,14 @@ def weights_key(seed: int) -> jax.Array:
     return jax.random.fold_in(jax.random.PRNGKey(seed), 1)
 
 
-def _metrics(data, r: ot.OnlineThesisResult) -> dict[str, jax.Array]:
-    """The row metrics of one run (inside jit/vmap): mg and mrad/s."""
+def _ot_metrics(data, r: ot.OnlineThesisResult) -> dict[str, jax.Array]:
+    """The online-thesis row metrics of one run (inside jit/vmap), mg and mrad/s.
+
+    ``test_acc_mg`` / ``test_gyr_mrads``: test errors (mean Euclidean error, eq. 3.8) after the
+    whole algorithm; ``init_test_*``: the same after the initial training; ``val_e_*_final``: the
+    validation errors of eq. 4.14 after the last sequence, ``val_e_*_last50``: averaged over the
+    last 50 sequences; ``init_loss_*``: the initial-training losses.
+    """
     ea, eg = ot.test_set_errors((r.acc_params, r.gyr_params), data)
     ea0, eg0 = ot.test_set_errors((r.acc_params0, r.gyr_params0), data)
     last = min(50, r.e_g.shape[0] - 1)
@@ -446,41 +540,292 @@ def _metrics(data, r: ot.OnlineThesisResult) -> dict[str, jax.Array]:
 
 
 def _hparams(full: dict[str, Any], seed: int) -> ot.OnlineThesisHParams:
-    ints = TARGETS["online-thesis"].ints
-    return ot.default_hparams(weights_key(seed), **{k: int(full[k]) if k in ints else float(full[k]) for k in _OT_TRACED})
+    return ot.default_hparams(weights_key(seed), **{k: int(full[k]) if k in _OT_INTS else float(full[k]) for k in _OT_TRACED})
 
 
-def _dataset_config(spec: SweepSpec, key: tuple) -> Dataset2Config:
+def _dataset_config(spec: SweepSpec, target: Target, key: tuple) -> Any:
     ds = {k[len(_DATASET_PREFIX):]: v for k, v in key if k.startswith(_DATASET_PREFIX)}
-    return spec.dataset._replace(**ds)
+    return _dataset(spec, target)._replace(**ds)
 
 
-def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, float]:
+def _ot_run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, float]:
+    target = TARGETS["online-thesis"]
+    full = _full(spec, target, config)
+    key = _static_key(spec, target, config)
+    data = dataset2(jax.random.PRNGKey(config["seed"]), _dataset_config(spec, target, key))
+    r = ot.run_online_thesis(data, _hparams(full, config["seed"]), init_every=int(full["init_every"]))
+    return {k: float(v) for k, v in _ot_metrics(data, r).items()}
+
+
+def _ot_group_fn(datas, per_config, *, dt: float, init_every: int):
+    """vmap of the whole algorithm + metrics over the configuration axis (datas indexed by seed)."""
+
+    def one(i, hp):
+        d = jax.tree.map(lambda x: x[i], datas)._replace(dt=dt)
+        return _ot_metrics(d, ot.run_dataset(d, hp, init_every))
+
+    return jax.vmap(one)(*per_config)
+
+
+_OT_JIT = jax.jit(_ot_group_fn, static_argnames=("dt", "init_every"))
+
+
+def _ot_prepare(spec: SweepSpec, key: tuple, configs: list[dict[str, Any]]) -> Prepared:
+    target = TARGETS["online-thesis"]
+    config = _dataset_config(spec, target, key)
+    seeds = sorted({c["seed"] for c in configs})
+    datas = [dataset2(jax.random.PRNGKey(s), config)._replace(dt=None) for s in seeds]
+    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *datas)
+    hps = ot.stack_hparams([_hparams(_full(spec, target, c), c["seed"]) for c in configs])
+    seed_idx = jnp.asarray([seeds.index(c["seed"]) for c in configs], dtype=jnp.int32)
+    init_every = int(_full(spec, target, configs[0])["init_every"])
+    return Prepared(functools.partial(_OT_JIT, dt=1.0 / config.fs, init_every=init_every), stacked, (seed_idx, hps))
+
+
+def _ot_describe(spec: SweepSpec) -> str:
+    ds = _dataset(spec, TARGETS["online-thesis"])
+    return f"Dataset 2 with {ds.n_train} training sequences of {ds.n_samples} samples; fixed {spec.fixed or 'nothing'}"
+
+
+# ----------------------------------------------------------------------------- offline-nn
+
+#: Dataset 1 surrogate of the offline-nn target: ``dataset1(PRNGKey(OFFLINE_DATASET_KEY))``, as
+#: ``experiments/offline.py``.
+OFFLINE_DATASET_KEY = 0
+_OFFLINE_SEED_KEY = 1  # experiments/offline.py's SEED_KEY
+_OFFLINE_SPLIT_SEEDS = 5  # experiments/offline.py's full run: split(PRNGKey(1), 5)
+_OFFLINE_STATIC = ("l", "width", "warm_start", "row_chunk", "max_epochs", "slope")
+_OFFLINE_TRAIN = NNTrainSpec()  # the chapter-3 recipe: the target's defaults
+
+
+def offline_seed_keys(seed: int) -> tuple[jax.Array, jax.Array]:
+    """``(init_key, perm_key)`` of offline-nn seed ``seed``: the NN's initial weights, the row subset.
+
+    ``base = split(PRNGKey(1), 5)[seed]`` for ``seed < 5`` (the seeds of ``experiments/offline.py``,
+    whose full run splits five; its quick run's two are the same keys, threefry being partitionable)
+    and ``base = fold_in(PRNGKey(1), seed)`` otherwise; then ``init_key, perm_key = split(base)``.
+    The ``l`` training rows are the first ``l`` of ``permutation(perm_key, 1000)`` (as
+    :func:`jaxcal.simulate.dataset1.nested_subset_weights`), kept in their dataset order.
+
+    Args:
+        seed: the configuration's seed.
+    """
+    root = jax.random.PRNGKey(_OFFLINE_SEED_KEY)
+    base = jax.random.split(root, _OFFLINE_SPLIT_SEEDS)[seed] if seed < _OFFLINE_SPLIT_SEEDS else jax.random.fold_in(root, seed)
+    init_key, perm_key = jax.random.split(base)
+    return init_key, perm_key
+
+
+class _OfflineStatic(NamedTuple):
+    """The offline-nn group settings (static: hashable, a change recompiles)."""
+
+    l: int
+    width: int
+    warm_start: bool
+    row_chunk: int  # 0: all rows at once
+    max_epochs: int
+    slope: float
+
+    @property
+    def mlp(self) -> MLP:
+        return MLP(widths=(self.width,), out_dim=3, slope=self.slope)
+
+
+def _offline_static(full: dict[str, Any]) -> _OfflineStatic:
+    return _OfflineStatic(int(full["l"]), int(full["width"]), bool(full["warm_start"]), int(full["row_chunk"]),
+                          int(full["max_epochs"]), float(full["slope"]))
+
+
+def _offline_rows(data, seed: int, l: int) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """``(init_key, counts (l, 3), labels (l, 3))`` of a seed: its first ``l`` permuted training rows."""
+    init_key, perm_key = offline_seed_keys(seed)
+    n = data.train.acc.shape[0]
+    sel = np.flatnonzero(np.asarray(nested_subset_weights(perm_key, n, (l,)))[0] > 0)
+    return init_key, data.train.acc[sel], data.train.acc_ref[sel]
+
+
+def _offline_metrics(out_va, out_te, lin, data, epochs, best_epoch, max_epochs: int) -> dict[str, jax.Array]:
+    """The offline-nn row metrics (mg; inside jit/vmap or not).
+
+    ``test_mg`` / ``val_mg``: mean Euclidean error (eq. 3.8) of the NN (best-validation weights)
+    on the 184 test / validation orientations against their labels; ``linear_mg``: the same test
+    error of the 12-parameter linear model fitted on the same ``l`` rows; ``epochs``: Adam epochs
+    run; ``best_epoch``: the 0-based index of the epoch whose weights are returned (they follow
+    ``best_epoch + 1`` Adam steps), -1 if none beat the initial ones; ``hit_cap``: training ran
+    to ``max_epochs`` (patience did not stop it).
+    """
+    return {
+        "test_mg": 1e3 * euclidean_error(data.test.acc_ref, out_te).mean(),
+        "linear_mg": 1e3 * euclidean_error(data.test.acc_ref, affine_inverse(lin, data.test.acc)).mean(),
+        "val_mg": 1e3 * euclidean_error(data.val.acc_ref, out_va).mean(),
+        "epochs": epochs,
+        "best_epoch": best_epoch,
+        "hit_cap": epochs >= max_epochs,
+    }
+
+
+class _OfflineShared(NamedTuple):
+    """The replicated data of an offline-nn batch (seeds stacked on the first axis)."""
+
+    init_keys: jax.Array
+    y: jax.Array
+    x: jax.Array
+    data: Any
+    bounds: Any
+
+
+def _offline_group_fn(shared: _OfflineShared, per_config, *, st: _OfflineStatic):
+    """vmap of NN and linear fits + metrics over the configuration axis (rows indexed by seed)."""
+    mlp = st.mlp
+
+    def one(i, cfg):
+        y, x = shared.y[i], shared.x[i]
+        w = jnp.ones(y.shape[0], y.dtype)
+        val = (shared.data.val.acc, shared.data.val.acc_ref)
+        cal, res = fit_nn(shared.init_keys[i], mlp, shared.bounds, (y, x, w), val, cfg, st.max_epochs, st.warm_start,
+                          st.row_chunk or None)
+        out_va, out_te = nn_calibrate(mlp, cal, shared.data.val.acc), nn_calibrate(mlp, cal, shared.data.test.acc)
+        lin = fit_affine(x, y, w)
+        return _offline_metrics(out_va, out_te, lin, shared.data, res.epochs, res.best_epoch, st.max_epochs)
+
+    return jax.vmap(one)(*per_config)
+
+
+_OFFLINE_JIT = jax.jit(_offline_group_fn, static_argnames=("st",))
+
+
+def _offline_call(shared, per_config, *, st: _OfflineStatic) -> dict[str, jax.Array]:
+    # Full float32 matmuls, as experiments/offline.py: GPUs may default to TF32 (~1e-3 relative).
+    with jax.default_matmul_precision("highest"):
+        return _OFFLINE_JIT(shared, per_config, st=st)
+
+
+def _offline_data():
+    data = dataset1(jax.random.PRNGKey(OFFLINE_DATASET_KEY), Dataset1Config())
+    return data, bounds_from_spec(data.spec, ACC_RANGE_G)
+
+
+def _offline_prepare(spec: SweepSpec, key: tuple, configs: list[dict[str, Any]]) -> Prepared:
+    target = TARGETS["offline-nn"]
+    st = _offline_static(_full(spec, target, configs[0]))
+    data, bounds = _offline_data()
+    seeds = sorted({c["seed"] for c in configs})
+    keys, ys, xs = zip(*(_offline_rows(data, s, st.l) for s in seeds), strict=True)
+    shared = _OfflineShared(jnp.stack(keys), jnp.stack(ys), jnp.stack(xs), data, bounds)
+    fulls = [_full(spec, target, c) for c in configs]
+    cfg = TrainConfig(
+        learning_rate=jnp.asarray([float(f["lr"]) for f in fulls], jnp.float32),
+        patience=jnp.asarray([int(f["patience"]) for f in fulls], jnp.int32),
+        min_delta=jnp.zeros(len(fulls), jnp.float32),
+        min_rel_delta=jnp.asarray([float(f["min_rel_delta"]) for f in fulls], jnp.float32),
+    )
+    seed_idx = jnp.asarray([seeds.index(c["seed"]) for c in configs], dtype=jnp.int32)
+    return Prepared(functools.partial(_offline_call, st=st), shared, (seed_idx, cfg))
+
+
+def _offline_run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, Any]:
+    """One configuration through ``experiments/offline.py``'s own path (:func:`jaxcal.offline.nn_calibrate_rows`).
+
+    The learning rate there is a (constant) optax schedule and every setting is static: a second
+    route to the numbers the vmapped :func:`_offline_group_fn` gives.
+    """
+    full = _full(spec, TARGETS["offline-nn"], config)
+    st = _offline_static(full)
+    data, bounds = _offline_data()
+    init_key, y, x = _offline_rows(data, config["seed"], st.l)
+    lr = float(full["lr"])
+    train = NNTrainSpec(lr_init=lr, lr_final=lr, patience=int(full["patience"]), max_epochs=st.max_epochs,
+                        min_rel_delta=float(full["min_rel_delta"]), warm_start=st.warm_start,
+                        row_chunk=st.row_chunk or None)
+    y_eval = jnp.concatenate([data.val.acc, data.test.acc])
+    val = (data.val.acc, data.val.acc_ref)
+    with jax.default_matmul_precision("highest"):
+        out, epochs, best = jax.jit(lambda k, y, x: nn_calibrate_rows(k, st.mlp, bounds, (y, x), val, y_eval, train))(
+            init_key, y, x)
+        lin = jax.jit(fit_affine)(x, y, jnp.ones(y.shape[0], y.dtype))
+    n_va = data.val.acc.shape[0]
+    m = _offline_metrics(out[:n_va], out[n_va:], lin, data, epochs, best, st.max_epochs)
+    return {k: _scalar(np.asarray(v)) for k, v in m.items()}
+
+
+def _offline_describe(spec: SweepSpec) -> str:
+    target = TARGETS["offline-nn"]
+    swept = {*spec.grid, *spec.random}
+    rest = {k: v for k, v in _full(spec, target, {}).items() if k not in swept}
+    return (f"the fixed Dataset 1 surrogate, dataset1(PRNGKey({OFFLINE_DATASET_KEY})), 1000 train / 184 val / 184 test; "
+            f"NN 3-width-3 trained by Adam on l rows drawn per seed, early stopping on the validation loss; linear: the "
+            f"12-parameter model on the same rows; settings not swept: {', '.join(f'{k} = {v}' for k, v in rest.items())}")
+
+
+# ----------------------------------------------------------------------------- targets
+
+TARGETS: dict[str, Target] = {
+    "online-thesis": Target(
+        name="online-thesis",
+        traced=_OT_TRACED,
+        static=("init_every",),
+        ints=_OT_INTS,
+        bools=(),
+        ranges={"init_epochs": (0, math.inf, False), "gyr_steps": (0, math.inf, False), "acc_steps": (0, math.inf, False),
+                "init_every": (1, math.inf, False), "w": (0.0, 1.0, False), "init_lr": (0.0, math.inf, True),
+                "gyr_lr": (0.0, math.inf, True), "acc_lr": (0.0, math.inf, True)},
+        defaults={**{f: ot.OnlineThesisHParams._field_defaults[f] for f in _OT_TRACED}, "init_every": ot.INIT_EVERY},
+        dataset=Dataset2Config(),
+        metrics=(("test_gyr_mrads", "test gyr [mrad/s]"), ("test_acc_mg", "test acc [mg]"),
+                 ("val_e_g_last50_mrads", "val e_g last 50 [mrad/s]"), ("val_e_a_last50_mg", "val e_a last 50 [mg]"),
+                 ("init_test_gyr_mrads", "after init gyr [mrad/s]"), ("init_test_acc_mg", "after init acc [mg]")),
+        heatmap_metrics=("test_gyr_mrads", "test_acc_mg"),
+        best=(("test_gyr_mrads", "gyroscope error", "mrad/s"), ("test_acc_mg", "accelerometer error", "mg")),
+        best_context=(),
+        describe=_ot_describe,
+        prepare=_ot_prepare,
+        run_one=_ot_run_one,
+    ),
+    "offline-nn": Target(
+        name="offline-nn",
+        traced=("lr", "patience", "min_rel_delta"),
+        static=_OFFLINE_STATIC,
+        ints=("patience", "l", "width", "row_chunk", "max_epochs"),
+        bools=("warm_start",),
+        ranges={"lr": (0.0, math.inf, True), "patience": (1, math.inf, False), "min_rel_delta": (0.0, 1.0, False),
+                "l": (4, Dataset1Config().n_train, False), "width": (1, math.inf, False),
+                "row_chunk": (0, math.inf, False), "max_epochs": (1, math.inf, False), "slope": (0.0, 1.0, False)},
+        defaults={"lr": _OFFLINE_TRAIN.lr_init, "patience": _OFFLINE_TRAIN.patience,
+                  "min_rel_delta": _OFFLINE_TRAIN.min_rel_delta, "l": Dataset1Config().n_train,
+                  "width": THESIS_OFFLINE_WIDTHS[0], "warm_start": _OFFLINE_TRAIN.warm_start,
+                  "row_chunk": _OFFLINE_TRAIN.row_chunk or 0, "max_epochs": _OFFLINE_TRAIN.max_epochs,
+                  "slope": THESIS_LEAKY_SLOPE},
+        dataset=None,
+        metrics=(("test_mg", "NN test [mg]"), ("linear_mg", "linear test [mg]"), ("val_mg", "NN val [mg]"),
+                 ("epochs", "epochs"), ("best_epoch", "best epoch"), ("hit_cap", "share at max_epochs")),
+        heatmap_metrics=("test_mg", "epochs"),
+        best=(("test_mg", "NN test error", "mg"),),
+        best_context=(("linear_mg", "linear model on the same rows", "mg"), ("epochs", "epochs", "")),
+        describe=_offline_describe,
+        prepare=_offline_prepare,
+        run_one=_offline_run_one,
+    ),
+}
+
+
+# ----------------------------------------------------------------------------- one batch
+
+
+def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, Any]:
     """One configuration on its own (no vmap, no sharding): the reference :func:`run_sweep` matches.
 
     Args:
         spec: the sweep (defaults, fixed values and dataset settings).
         config: one entry of :func:`expand`.
     """
-    target = check_spec(spec)
-    full = _full(spec, target, config)
-    key = _static_key(spec, target, config)
-    data = dataset2(jax.random.PRNGKey(config["seed"]), _dataset_config(spec, key))
-    r = ot.run_online_thesis(data, _hparams(full, config["seed"]), init_every=int(full["init_every"]))
-    return {k: float(v) for k, v in _metrics(data, r).items()}
+    return check_spec(spec).run_one(spec, config)
 
 
-def _group_fn(datas, seed_idx, hps, *, dt: float, init_every: int):
-    """vmap of the whole algorithm + metrics over the configuration axis (datas indexed by seed)."""
-
-    def one(i, hp):
-        d = jax.tree.map(lambda x: x[i], datas)._replace(dt=dt)
-        return _metrics(d, ot.run_dataset(d, hp, init_every))
-
-    return jax.vmap(one)(seed_idx, hps)
-
-
-_GROUP_JIT = jax.jit(_group_fn, static_argnames=("dt", "init_every"))
+def _scalar(v: np.ndarray | np.generic) -> bool | int | float:
+    """A row value as plain Python: ``bool``, ``int`` or ``float`` after the array's dtype."""
+    if v.dtype == np.bool_:
+        return bool(v)
+    return int(v) if np.issubdtype(v.dtype, np.integer) else float(v)
 
 
 def _gather(x: jax.Array) -> np.ndarray:
@@ -493,25 +838,18 @@ def _gather(x: jax.Array) -> np.ndarray:
 
 def _run_batch(spec: SweepSpec, target: Target, batch: Batch, devices: Sequence[jax.Device]) -> list[dict]:
     """One vmapped, jitted, sharded call; the rows of the batch's configurations."""
-    full0 = _full(spec, target, batch.configs[0])
-    config = _dataset_config(spec, batch.key)
-    seeds = sorted({c["seed"] for c in batch.configs})
-    datas = [dataset2(jax.random.PRNGKey(s), config)._replace(dt=None) for s in seeds]
-    stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *datas)
     n = len(batch.configs)
-    pad = -n % len(devices)
-    configs = batch.configs + [batch.configs[-1]] * pad
-    hps = ot.stack_hparams([_hparams(_full(spec, target, c), c["seed"]) for c in configs])
-    seed_idx = jnp.asarray([seeds.index(c["seed"]) for c in configs], dtype=jnp.int32)
+    configs = batch.configs + [batch.configs[-1]] * (-n % len(devices))
+    prep = target.prepare(spec, batch.key, configs)
     mesh = Mesh(np.asarray(devices), ("configs",))
     along, replicated = NamedSharding(mesh, P("configs")), NamedSharding(mesh, P())
-    hps, seed_idx = jax.device_put((hps, seed_idx), along)
-    stacked = jax.device_put(stacked, replicated)
-    out = _GROUP_JIT(stacked, seed_idx, hps, dt=1.0 / config.fs, init_every=int(full0["init_every"]))
+    per_config = jax.device_put(prep.per_config, along)
+    shared = jax.device_put(prep.shared, replicated)
+    out = prep.fn(shared, per_config)
     out = {k: _gather(v)[:n] for k, v in out.items()}
-    names = [k for k in (*spec.grid, *spec.random)]
+    names = (*spec.grid, *spec.random)
     return [
-        {"group": batch.label, **{k: c[k] for k in names}, "seed": c["seed"], **{k: float(v[i]) for k, v in out.items()}}
+        {"group": batch.label, **{k: c[k] for k in names}, "seed": c["seed"], **{k: _scalar(v[i]) for k, v in out.items()}}
         for i, c in enumerate(batch.configs)
     ]
 
@@ -584,17 +922,16 @@ def run_sweep(
             eta = elapsed / (k + 1) * (len(todo) - k - 1)
             log(f"sweep: batch {len(batches) - len(todo) + k + 1}/{len(batches)} ({b.label}, {len(b.configs)} "
                 f"configurations on {len(devices)} device(s)) in {timing[b.label]:.1f} s; ETA {eta:.0f} s")
-    rows = [r for b in batches for r in done[b.label]]
     names = (*spec.grid, *spec.random)
+    order: dict[tuple, int] = {}
+    for i, c in enumerate(expand(spec)):
+        order.setdefault(tuple(c[k] for k in (*names, "seed")), i)
+    rows = sorted((r for b in batches for r in done[b.label]), key=lambda r: order[tuple(r[k] for k in (*names, "seed"))])
     return SweepResult(spec, names, rows, {"batches": timing, "total_s": time.perf_counter() - t_start,
                                            "resumed": len(batches) - len(todo), "devices": len(devices)})
 
 
 # ----------------------------------------------------------------------------- output
-
-_METRIC_COLS = (("test_gyr_mrads", "test gyr [mrad/s]"), ("test_acc_mg", "test acc [mg]"),
-                ("val_e_g_last50_mrads", "val e_g last 50 [mrad/s]"), ("val_e_a_last50_mg", "val e_a last 50 [mg]"),
-                ("init_test_gyr_mrads", "after init gyr [mrad/s]"), ("init_test_acc_mg", "after init acc [mg]"))
 
 
 def _seed_means(result: SweepResult) -> list[dict[str, Any]]:
@@ -605,39 +942,42 @@ def _seed_means(result: SweepResult) -> list[dict[str, Any]]:
     out = []
     for key, rs in by.items():
         m = dict(zip(result.names, key, strict=True))
-        for col, _ in _METRIC_COLS:
+        for col, _ in TARGETS[result.spec.target].metrics:
             m[col] = float(np.mean([r[col] for r in rs]))
         m["n_seeds"] = len(rs)
         out.append(m)
     return out
 
 
+def _fmt(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else str(v)
+
+
 def _markdown(result: SweepResult) -> str:
     spec = result.spec
+    target = TARGETS[spec.target]
     means = _seed_means(result)
-    cols = [*result.names, *(c for c, _ in _METRIC_COLS)]
-    heads = [*result.names, *(h for _, h in _METRIC_COLS)]
-
-    def fmt(v):
-        return f"{v:.4g}" if isinstance(v, float) else str(v)
-
+    cols = [*result.names, *(c for c, _ in target.metrics)]
+    heads = [*result.names, *(h for _, h in target.metrics)]
     lines = [
         f"# Sweep: {spec.target}",
         "",
         f"Written by `jaxcal sweep` ({len(result.rows)} runs: {len(means)} configurations x {len(spec.seeds)} seeds "
-        f"{list(spec.seeds)}; Dataset 2 with {spec.dataset.n_train} training sequences of {spec.dataset.n_samples} "
-        f"samples; fixed {spec.fixed or 'nothing'}). Errors are test-set means (eq. 3.8) averaged over the seeds; "
-        f"{result.timing.get('total_s', 0):.1f} s on {result.timing.get('devices', 1)} device(s).",
+        f"{list(spec.seeds)}; {target.describe(spec)}). Errors are test-set means "
+        f"(eq. 3.8) averaged over the seeds; {result.timing.get('total_s', 0):.1f} s on "
+        f"{result.timing.get('devices', 1)} device(s).",
         "",
     ]
     if means:
-        bg = min(means, key=lambda m: m["test_gyr_mrads"])
-        ba = min(means, key=lambda m: m["test_acc_mg"])
-        show = lambda m: ", ".join(f"{k} = {fmt(m[k])}" for k in result.names) or "the only configuration"  # noqa: E731
-        lines += [f"Lowest gyroscope error: {bg['test_gyr_mrads']:.2f} mrad/s ({show(bg)}; accelerometer "
-                  f"{bg['test_acc_mg']:.2f} mg). Lowest accelerometer error: {ba['test_acc_mg']:.2f} mg ({show(ba)}).", ""]
+        show = lambda m: ", ".join(f"{k} = {_fmt(m[k])}" for k in result.names) or "the only configuration"  # noqa: E731
+        words = []
+        for col, phrase, unit in target.best:
+            b = min(means, key=lambda m: m[col])
+            others = "; ".join(f"{p} {b[c]:.4g}{' ' + u if u else ''}" for c, p, u in (*target.best, *target.best_context) if c != col)
+            words.append(f"Lowest {phrase}: {b[col]:.2f} {unit} ({show(b)}{'; ' + others if others else ''}).")
+        lines += [" ".join(words), ""]
     lines += ["| " + " | ".join(heads) + " |", "|" + "---|" * len(heads)]
-    lines += ["| " + " | ".join(fmt(m[c]) for c in cols) + " |" for m in means]
+    lines += ["| " + " | ".join(_fmt(m[c]) for c in cols) + " |" for m in means]
     lines += ["", "Per seed: `sweep.json` (`rows`).", ""]
     return "\n".join(lines)
 
@@ -648,28 +988,38 @@ def _heatmap_axes(result: SweepResult) -> tuple[str, str] | None:
     return tuple(result.names[:2]) if len(result.names) >= 2 else None
 
 
+def _tick(v: Any) -> str:
+    return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+
 def _write_heatmap(path: Path, result: SweepResult, axes: tuple[str, str]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
 
+    target = TARGETS[result.spec.target]
+    heads = dict(target.metrics)
     xa, ya = axes
     xs = sorted({r[xa] for r in result.rows})
     ys = sorted({r[ya] for r in result.rows})
     fig, panes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
-    for ax, (col, head) in zip(panes, _METRIC_COLS[:2], strict=True):
+    for ax, col in zip(panes, target.heatmap_metrics, strict=True):
         grid = np.full((len(ys), len(xs)), np.nan)
         for j, y in enumerate(ys):
             for i, x in enumerate(xs):
                 v = [r[col] for r in result.rows if r[xa] == x and r[ya] == y]
                 grid[j, i] = np.mean(v) if v else np.nan
-        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis")
-        ax.set_xticks(range(len(xs)), [f"{x:.3g}" for x in xs], rotation=45)
-        ax.set_yticks(range(len(ys)), [f"{y:.3g}" for y in ys])
+        fin = grid[np.isfinite(grid)]
+        # a log colour scale when the cells span more than a decade (e.g. converged vs unconverged fits)
+        norm = LogNorm() if fin.size and fin.min() > 0 and fin.max() > 10 * fin.min() else None
+        im = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", norm=norm)
+        ax.set_xticks(range(len(xs)), [_tick(x) for x in xs], rotation=45)
+        ax.set_yticks(range(len(ys)), [_tick(y) for y in ys])
         ax.set_xlabel(xa)
         ax.set_ylabel(ya)
-        ax.set_title(f"{head}, mean over seeds and other axes")
+        ax.set_title(f"{heads[col]}, mean over seeds and other axes")
         for j in range(len(ys)):
             for i in range(len(xs)):
                 if np.isfinite(grid[j, i]):
