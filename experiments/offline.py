@@ -384,12 +384,27 @@ def _pick_words(rows: list[dict], floor: float) -> list[str]:
         f"{r0['nn_mean_mg']:.2f} mg; at l = {r1['l']}: {r1['residual_mean_mg']:.2f}, {r1['cubic_mean_mg']:.2f}, "
         f"{r1['linear_mean_mg']:.2f} and {r1['nn_mean_mg']:.2f} mg, against a floor of {floor:.2f} mg."
     )
+    big = [r for r in rows if r["l"] >= 50]
+    res_vs_cub = max(r["residual_mean_mg"] / r["cubic_mean_mg"] for r in big) if big else float("nan")
+    below = [r["l"] for r in rows if r["cubic_mean_mg"] < floor]
+    nn_worst = [r["l"] for r in rows if r["nn_mean_mg"] == max(r[k] for k in names)]
+    never_worse = all(r["residual_mean_mg"] <= 1.02 * r["linear_mean_mg"] for r in rows)
     words.append(
-        "- Plainly: with a nonlinear accelerometer, fit the affine backbone with an NN residual at every l; it never "
-        "does worse than the linear model because the residual's ridge warm start and early stopping shrink it to "
-        "zero when the data cannot support it. The cubic polynomial is the closed-form alternative once l is a few "
-        "times its 60 parameters; the thesis's bare NN needs hundreds of orientations to catch up, and with "
-        "fewer than ~100 it is the worst choice."
+        "- Plainly, for a user: when the nonlinearity is a low-order polynomial, as in this surrogate (its k2, k3 "
+        "and cross terms *are* a cubic), fit the cubic polynomial once you have more orientations than its 60 "
+        "parameters; it is closed-form and well specified here, which favours it"
+        + (f", and it even goes below the floor at l = {', '.join(map(str, below))} (static poses lie on the unit "
+           "sphere and the 60-parameter fit learns that constraint, which removes part of the radial read noise; "
+           "the floor is the exact inverse applied to noisy counts, not a bound for a fit to the same sphere)"
+           if below else "")
+        + ". When the nonlinearity is unknown, fit the affine backbone with an NN residual: "
+        + (f"within {100 * (res_vs_cub - 1):.0f} % of the cubic at every l >= 50, " if big else "")
+        + f"best of all at l = {rows[0]['l']}"
+        + (", and never worse than the linear model (its ridge warm start and early stopping shrink the residual to "
+           "zero when the data cannot support it)." if never_worse else ".")
+        + " The thesis's bare NN is the worst choice at l = " + ", ".join(map(str, nn_worst))
+        + f" and needs ~{next((r['l'] for r in rows if r['nn_mean_mg'] <= 1.15 * r['residual_mean_mg']), rows[-1]['l'])} "
+        "orientations to come within 15 % of the residual model."
     )
     return words
 
@@ -434,7 +449,8 @@ def _report(out: dict, quick: bool, sizes, pre: str, n_datasets: int) -> str:
         "linear model lands near the thesis's ~2.2 mg; the noise and label error so that the floor is ~1 mg.",
         f"- **Floor** (measured): the exact inverse of the true sensor model applied to the noisy test counts, "
         f"scored against the labels, has mean error {fl['oracle_mean_mg']:.3f} mg (std {fl['oracle_std_mg']:.3f}); "
-        f"label error alone is {fl['label_only_mean_mg']:.3f} mg. No calibration can beat this on average.",
+        f"label error alone is {fl['label_only_mean_mg']:.3f} mg. It is the level a calibration that knows the true model reaches; "
+        "a fit to static poses can go slightly below it, by learning that they lie on the unit sphere (the cubic, below).",
         "- **Linear**: the 12-parameter model of eq. 3.1, `jaxcal.linear.fit_affine` (optimistix Gauss-Newton), "
         "applied with eq. 3.5.",
         f"- **NN**: thesis architecture 3 -> {out['nn']['widths']} leaky-ReLU({out['nn']['slope']}) -> 3, inputs "
