@@ -612,7 +612,7 @@ def _markdown(res: dict) -> str:
         "",
         "## Not measured in this version",
         "",
-        *[f"- `{k}`: {v}" for k, v in res["not_measured"].items()],
+        *([f"- `{k}`: {v}" for k, v in res["not_measured"].items()] or ["- none: every key of the record was measured."]),
         "",
     ]
     return "\n".join(lines)
