@@ -61,6 +61,7 @@ class NNTrainSpec(NamedTuple):
     min_rel_delta: float = 1e-3
     warm_start: bool = True
     row_chunk: int | None = 200
+
     def train_config(self) -> TrainConfig:
         """The :class:`~jaxcal.train.TrainConfig` with the decaying step size as an optax schedule."""
         sched = optax.exponential_decay(
@@ -98,6 +99,14 @@ def linear_calibrate_subsets(
     return jax.vmap(one)(weights)
 
 
+def _fit_and_calibrate(key, mlp, bounds, train, val, y_te, spec: NNTrainSpec):
+    """:func:`jaxcal.nn.fit_nn` with the spec's recipe on ``(y, x, w)``; the calibrated ``y_te``, the
+    epochs run and the best epoch."""
+    cal, res = fit_nn(key, mlp, bounds, train, val, spec.train_config(), spec.max_epochs, spec.warm_start,
+                      spec.row_chunk)
+    return nn_calibrate(mlp, cal, y_te), res.epochs, res.best_epoch
+
+
 def nn_calibrate_subsets(
     key: jax.Array,
     mlp: MLP,
@@ -124,11 +133,9 @@ def nn_calibrate_subsets(
         Calibrated test outputs ``(K, T, 3)`` in g, and the epochs run and best epoch per subset.
     """
     y_tr, x_tr = train
-    cfg = spec.train_config()
 
     def one(w):
-        cal, res = fit_nn(key, mlp, bounds, (y_tr, x_tr, w), val, cfg, spec.max_epochs, spec.warm_start, spec.row_chunk)
-        return nn_calibrate(mlp, cal, y_te), res.epochs, res.best_epoch
+        return _fit_and_calibrate(key, mlp, bounds, (y_tr, x_tr, w), val, y_te, spec)
 
     return jax.vmap(one)(weights)
 
@@ -160,10 +167,7 @@ def nn_calibrate_rows(
         Calibrated test outputs (g), epochs run and best epoch.
     """
     y_tr, x_tr = train
-    w = jnp.ones(y_tr.shape[0], y_tr.dtype)
-    cal, res = fit_nn(key, mlp, bounds, (y_tr, x_tr, w), val, spec.train_config(), spec.max_epochs,
-                      spec.warm_start, spec.row_chunk)
-    return nn_calibrate(mlp, cal, y_te), res.epochs, res.best_epoch
+    return _fit_and_calibrate(key, mlp, bounds, (y_tr, x_tr, jnp.ones(y_tr.shape[0], y_tr.dtype)), val, y_te, spec)
 
 
 def residual_nn_calibrate_rows(
