@@ -9,6 +9,7 @@
     jaxcal import FORMAT FILE... --out REC.npz [--fs HZ] [...]
     jaxcal diagnose RECORDING --out DIR [--baseline diag|affine]
     jaxcal sweep CONFIG.json --out DIR [--resume]
+    jaxcal export MODEL.npz --format json|c --out FILE [--name NAME]
     jaxcal methods
     jaxcal --version
 
@@ -689,6 +690,64 @@ register_command(
         "Run the sweep of CONFIG (jaxcal.sweep: target, grid and/or random search, seeds, dataset) as one "
         "vmapped, jitted call per compile-compatible batch on all local devices, checkpointing DIR/checkpoint.json "
         "after each; write DIR/sweep.json, sweep.md and sweep_heatmap.png.",
+    ),
+)
+
+
+# ----------------------------------------------------------------------------- export
+
+_EXPORT_SUFFIX = {"json": ".json", "c": ".h"}
+
+
+def _c_identifier(text: str) -> str:
+    if not (text.isascii() and text.replace("_", "a").isalnum() and not text[0].isdigit()):
+        raise argparse.ArgumentTypeError(f"expected a C identifier (letters, digits, '_'), got {text!r}")
+    return text
+
+
+def _add_export(p: argparse.ArgumentParser) -> None:
+    p.add_argument("model", metavar="MODEL", help="linear model file written by `jaxcal calibrate` (linear, multipos, online)")
+    p.add_argument("--format", required=True, choices=tuple(_EXPORT_SUFFIX),
+                   help="json: plain JSON with the apply equation written out; c: dependency-free C99 header")
+    p.add_argument("--out", required=True, metavar="FILE", help="file to write (.json for json, .h for c)")
+    p.add_argument("--name", type=_c_identifier, default="jaxcal_cal",
+                   help="c: prefix of the header's identifiers (default jaxcal_cal)")
+
+
+def _run_export(args: argparse.Namespace) -> int:
+    from jaxcal import export  # imported on use, like diagnose
+
+    suffix = _EXPORT_SUFFIX[args.format]
+    if not args.out.lower().endswith(suffix):
+        raise UsageError(f"--out {args.out}: the {args.format} export is written as {suffix}")
+    _check_out_file(args.out, [args.model])
+    model = load_model(args.model)
+    try:
+        if args.format == "json":
+            text = json.dumps(export.to_json(model), indent=2) + "\n"
+        else:
+            text = export.to_c_header(model, args.name)
+    except ModelError as e:  # a non-linear model: say which file
+        raise ModelError(f"{args.model}: {e}") from None
+    try:
+        with atomic_output(args.out) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    except OSError as e:
+        raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
+    print(f"{PROG}: wrote {args.out} ({args.format}: {model.method} model, {export.EQUATION} for "
+          f"{', '.join(model.sensors)})", file=sys.stderr)
+    return 0
+
+
+register_command(
+    "export",
+    Command(
+        "write a linear model as plain JSON or a C99 header",
+        _add_export,
+        _run_export,
+        "Write the linear calibration x = A @ (y - b) of each sensor of MODEL (methods linear, multipos, "
+        "online) as plain JSON (--format json) or a dependency-free C99 header with an apply function "
+        "(--format c). Non-linear models (nn, cubic, online-thesis) are refused.",
     ),
 )
 
