@@ -9,7 +9,7 @@
     jaxcal import FORMAT FILE... --out REC.npz [--fs HZ] [...]
     jaxcal diagnose RECORDING --out DIR [--baseline diag|affine]
     jaxcal sweep CONFIG.json --out DIR [--resume]
-    jaxcal export MODEL.npz --format json|c --out FILE [--name NAME]
+    jaxcal export MODEL.npz --format json|c|kalibr|openvins --out FILE [--name NAME]
     jaxcal methods
     jaxcal --version
 
@@ -696,7 +696,7 @@ register_command(
 
 # ----------------------------------------------------------------------------- export
 
-_EXPORT_SUFFIX = {"json": ".json", "c": ".h"}
+_EXPORT_SUFFIX = {"json": ".json", "c": ".h", "kalibr": ".yaml", "openvins": ".yaml"}
 
 
 def _c_identifier(text: str) -> str:
@@ -708,8 +708,11 @@ def _c_identifier(text: str) -> str:
 def _add_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", metavar="MODEL", help="linear model file written by `jaxcal calibrate` (linear, multipos, online)")
     p.add_argument("--format", required=True, choices=tuple(_EXPORT_SUFFIX),
-                   help="json: plain JSON with the apply equation written out; c: dependency-free C99 header")
-    p.add_argument("--out", required=True, metavar="FILE", help="file to write (.json for json, .h for c)")
+                   help="json: plain JSON with the apply equation written out; c: dependency-free C99 header; "
+                   "kalibr: Kalibr scale-misalignment IMU intrinsics (YAML); openvins: OpenVINS kalibr_imu_chain.yaml "
+                   "intrinsics (kalibr and openvins need acc and gyr)")
+    p.add_argument("--out", required=True, metavar="FILE",
+                   help="file to write (.json for json, .h for c, .yaml for kalibr and openvins)")
     p.add_argument("--name", type=_c_identifier, default="jaxcal_cal",
                    help="c: prefix of the header's identifiers (default jaxcal_cal)")
 
@@ -725,9 +728,13 @@ def _run_export(args: argparse.Namespace) -> int:
     try:
         if args.format == "json":
             text = json.dumps(export.to_json(model), indent=2) + "\n"
+        elif args.format == "kalibr":
+            text = export.yaml_document("kalibr", export.to_kalibr(model))
+        elif args.format == "openvins":
+            text = export.yaml_document("openvins", export.to_openvins(model))
         else:
             text = export.to_c_header(model, args.name)
-    except ModelError as e:  # a non-linear model: say which file
+    except ModelError as e:  # a non-linear model, a missing sensor, a singular matrix: say which file
         raise ModelError(f"{args.model}: {e}") from None
     try:
         with atomic_output(args.out) as tmp, open(tmp, "w", encoding="utf-8") as fh:
@@ -742,12 +749,14 @@ def _run_export(args: argparse.Namespace) -> int:
 register_command(
     "export",
     Command(
-        "write a linear model as plain JSON or a C99 header",
+        "write a linear model as plain JSON, a C99 header, or Kalibr/OpenVINS IMU intrinsics",
         _add_export,
         _run_export,
         "Write the linear calibration x = A @ (y - b) of each sensor of MODEL (methods linear, multipos, "
         "online) as plain JSON (--format json) or a dependency-free C99 header with an apply function "
-        "(--format c). Non-linear models (nn, cubic, online-thesis) are refused.",
+        "(--format c), or as Kalibr's scale-misalignment / OpenVINS's kalibr_imu_chain.yaml IMU intrinsics "
+        "(--format kalibr|openvins: YAML, acc in m/s^2 and gyr in rad/s from raw samples in the model's input "
+        "unit; both sensors needed). Non-linear models (nn, cubic, online-thesis) are refused.",
     ),
 )
 

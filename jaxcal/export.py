@@ -1,4 +1,4 @@
-"""Exports of a linear calibration model that leave jaxcal: a plain JSON and a C99 header.
+"""Exports of a linear calibration model that leave jaxcal: plain JSON, a C99 header, Kalibr and OpenVINS YAML.
 
 A linear model (a method whose ``apply`` is :func:`~jaxcal.methods.base.apply_linear_state`:
 ``linear``, ``multipos``, ``online``) holds per sensor an affine calibration, applied as::
@@ -16,6 +16,15 @@ the forward ``S``, and say so in the file. Numbers are written with Python's sho
 Non-linear models (``nn``, ``cubic``, ``online-thesis``) are refused: a 3x3 matrix and a bias cannot
 hold them.
 
+Two YAML exports write the same calibration in the parameterisations of Kalibr
+(:func:`to_kalibr`) and OpenVINS (:func:`to_openvins`); both need an IMU model (``acc`` and ``gyr``),
+write the accelerometer in m/s^2 (``x`` in g times :data:`~jaxcal.constants.G0`) and the gyroscope in
+rad/s, and keep the raw input ``y`` in the model's own input unit (the unit conversion and any
+counts-to-physical scale are folded into their matrices; a model fitted on ``LSB`` expects raw counts
+on the IMU topic). Neither format holds a constant bias (both estimate biases online as random
+walks), so ``b`` is written under the extra keys ``jaxcal_b_a`` / ``jaxcal_b_g`` (input unit),
+which both tools ignore; use them as the initial bias or subtract them upstream.
+
 Pure functions, no I/O: the ``jaxcal export`` command writes the files.
 """
 
@@ -29,14 +38,32 @@ from typing import Any
 
 import jax
 import numpy as np
+import yaml
+from jaxtyping import Float
 
 from jaxcal import __version__, methods
-from jaxcal.constants import PHYS_UNIT
+from jaxcal.arrays import Array
+from jaxcal.constants import G0, PHYS_UNIT
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.methods.base import affine_state, apply_linear_state
 from jaxcal.sensor import LinearCal
 
-__all__ = ["EQUATION", "JSON_FORMAT", "is_linear", "linear_cals", "linear_methods", "to_c_header", "to_json"]
+__all__ = [
+    "EQUATION",
+    "JSON_FORMAT",
+    "KALIBR_CONVENTION",
+    "OPENVINS_CONVENTION",
+    "is_linear",
+    "linear_cals",
+    "linear_methods",
+    "lower_times_rotation",
+    "physical_cals",
+    "to_c_header",
+    "to_json",
+    "to_kalibr",
+    "to_openvins",
+    "yaml_document",
+]
 
 EQUATION = "x = A @ (y - b)"
 """The applied form both exports write out (``A`` multiplies the column vector ``y - b``)."""
@@ -206,3 +233,198 @@ def to_c_header(model: CalibrationModel, name: str = "jaxcal_cal") -> str:
         ]
     lines += [f"#endif /* {guard} */", ""]
     return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- Kalibr and OpenVINS (YAML)
+
+KALIBR_CONVENTION = """\
+Kalibr IMU intrinsics, model scale-misalignment (kalibr IccSensors.py, IccScaledMisalignedImu:
+addAccelerometerErrorTerms / addGyroscopeErrorTerms), forward model with lever arm 0:
+  alpha = M_a @ (C_i_b @ a_b) + b_a
+  omega = M_g @ (C_gyro_i @ C_i_b @ w_b) + A @ (C_gyro_i @ C_i_b @ a_b) + b_g
+so the calibrated samples are
+  a_b = C_i_b.T @ inv(M_a) @ (alpha - b_a)                 [m/s^2]
+  w_b = C_i_b.T @ C_gyro_i.T @ inv(M_g) @ (omega - b_g)     [rad/s]   (A = 0: jaxcal fits no g-sensitivity)
+M_a, M_g: lower triangular (accelerometers.M, gyroscopes.M); C_gyro_i: rotation (gyroscopes.C_gyro_i);
+C_i_b: rotation block of T_i_b (translation 0), from jaxcal's calibrated frame b to Kalibr's IMU frame i,
+whose axes Kalibr ties to the accelerometer (lower-triangular M_a). alpha, omega: raw samples in the
+model's input unit (jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (Kalibr stores no
+constant bias). Matrices are lists of rows."""
+"""The convention header of :func:`to_kalibr`'s file (also in its ``yaml_document``)."""
+
+OPENVINS_CONVENTION = """\
+OpenVINS IMU intrinsics (kalibr_imu_chain.yaml, imu model "kalibr"). OpenVINS reads Tw, Ta, R_IMUtoGYRO,
+R_IMUtoACC, Tg and sets Dw = inv(Tw), Da = inv(Ta), R_GYROtoIMU = R_IMUtoGYRO.T, R_ACCtoIMU = R_IMUtoACC.T
+(ov_msckf VioManagerOptions.h); the corrected samples are (ov_msckf Propagator.cpp, docs.openvins.com
+propagation_analytical):
+  a_I = R_ACCtoIMU @ Da @ (a_m - b_a)                  [m/s^2]
+  w_I = R_GYROtoIMU @ Dw @ (w_m - b_g - Tg @ a_I)      [rad/s]   (Tg = 0: jaxcal fits no g-sensitivity)
+Tw, Ta: lower triangular (the "kalibr" model keeps the lower triangle of Dw, Da); I: jaxcal's calibrated
+frame. a_m, w_m: raw samples in the model's input unit (jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a,
+jaxcal_b_g in that unit (OpenVINS stores no constant bias). Matrices are lists of rows."""
+"""The convention header of :func:`to_openvins`'s file (also in its ``yaml_document``)."""
+
+_IMU_SENSORS = ("acc", "gyr")
+_KALIBR_UNIT = {"acc": "m/s^2", "gyr": "rad/s"}
+
+
+def lower_times_rotation(X: Float[Array, "3 3"]) -> tuple[np.ndarray, np.ndarray]:
+    """``X = T @ C`` with ``T`` lower triangular and ``C`` a rotation (orthonormal, det +1).
+
+    From the QR decomposition of ``X.T = Q R``: ``X = R.T @ Q.T``, ``T = R.T``, ``C = Q.T``. Signs are
+    chosen so that ``T``'s diagonal is positive; when ``det X < 0`` a rotation cannot absorb the
+    reflection and ``T[2, 2]`` is negative instead.
+
+    Args:
+        X: an invertible 3x3 matrix.
+
+    Raises:
+        ModelError: ``X`` is singular or not finite.
+    """
+    X = np.asarray(X, np.float64)
+    if X.shape != (3, 3) or not np.all(np.isfinite(X)) or abs(np.linalg.det(X)) < 1e-300:
+        raise ModelError("a singular or non-finite calibration matrix cannot be written as triangular x rotation")
+    Q, R = np.linalg.qr(X.T)
+    d = np.where(np.diag(R) < 0, -1.0, 1.0)
+    Q, R = Q * d, d[:, None] * R  # Q D, D R: same product, R's diagonal positive
+    if np.linalg.det(Q) < 0:
+        Q[:, 2], R[2, :] = -Q[:, 2], -R[2, :]
+    T, C = np.tril(R.T), Q.T  # R is upper triangular; tril drops QR's exact zeros only
+    return T, C
+
+
+def physical_cals(model: CalibrationModel) -> dict[str, LinearCal]:
+    """``acc``, ``gyr`` -> ``LinearCal`` with ``x = A (y - b)`` in m/s^2 and rad/s (Kalibr's, OpenVINS's units).
+
+    ``y`` and ``b`` stay in the model's input unit; the accelerometer's ``A`` is jaxcal's times
+    :data:`~jaxcal.constants.G0` (g -> m/s^2).
+
+    Args:
+        model: a linear model with both sensors.
+
+    Raises:
+        ModelError: the model is not linear or lacks ``acc`` or ``gyr``.
+    """
+    cals = linear_cals(model)
+    missing = [s for s in _IMU_SENSORS if s not in cals]
+    if missing:
+        raise ModelError(f"the kalibr and openvins exports describe a 6-axis IMU, but the model has no "
+                         f"{' or '.join(missing)} calibration (sensors: {', '.join(model.sensors)})")
+    scale = {"acc": G0, "gyr": 1.0}
+    return {s: LinearCal(cals[s].A * scale[s], cals[s].b) for s in _IMU_SENSORS}
+
+
+def _rows(M: np.ndarray) -> list[list[float]]:
+    return [[float(v) for v in row] for row in np.asarray(M, np.float64)]
+
+
+def _jaxcal_fields(model: CalibrationModel, cals: Mapping[str, LinearCal]) -> dict[str, Any]:
+    units = {s: _units(model, s)[0] or "unit not recorded" for s in _IMU_SENSORS}
+    return {
+        "jaxcal_b_a": [float(v) for v in cals["acc"].b],
+        "jaxcal_b_g": [float(v) for v in cals["gyr"].b],
+        "jaxcal_input_unit_acc": units["acc"],
+        "jaxcal_input_unit_gyr": units["gyr"],
+        "jaxcal_method": model.method,
+        "jaxcal_version": __version__,
+    }
+
+
+def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A linear model as Kalibr's ``scale-misalignment`` IMU intrinsics (``{"imu0": {...}}``).
+
+    Convention (:data:`KALIBR_CONVENTION`): Kalibr's forward model is ``alpha = M_a C_i_b a_b + b_a``,
+    ``omega = M_g C_gyro_i C_i_b w_b + b_g`` (``A`` = 0), so jaxcal's forward matrices (input unit per
+    m/s^2 or rad/s, the inverses of :func:`physical_cals`' ``A``) are split as ``S_a = M_a C_i_b``
+    and ``S_g C_i_b^T = M_g C_gyro_i`` with :func:`lower_times_rotation`. ``M`` are forward matrices
+    (raw per physical), not inverses. ``C_i_b`` goes in ``T_i_b`` (4x4, translation 0): Kalibr's IMU
+    frame ``i`` follows the accelerometer axes, jaxcal's calibrated frame is ``b``.
+
+    Args:
+        model: a linear model with ``acc`` and ``gyr``.
+        imu_fields: further ``imu0`` entries (e.g. ``rostopic``, ``update_rate``, noise densities),
+            added after jaxcal's; they may not replace them.
+
+    Raises:
+        ModelError: the model is not linear, lacks a sensor, or has a singular matrix.
+        ValueError: ``imu_fields`` would replace a calibration key.
+    """
+    cals = physical_cals(model)
+    S_a, S_g = np.linalg.inv(cals["acc"].A), np.linalg.inv(cals["gyr"].A)
+    M_a, C_i_b = lower_times_rotation(S_a)
+    M_g, C_gyro_i = lower_times_rotation(S_g @ C_i_b.T)
+    T_i_b = np.eye(4)
+    T_i_b[:3, :3] = C_i_b
+    imu = {
+        "model": "scale-misalignment",
+        "T_i_b": _rows(T_i_b),
+        "accelerometers": {"M": _rows(M_a)},
+        "gyroscopes": {"M": _rows(M_g), "A": _rows(np.zeros((3, 3))), "C_gyro_i": _rows(C_gyro_i)},
+        **_jaxcal_fields(model, cals),
+    }
+    return {"imu0": _merge(imu, imu_fields)}
+
+
+def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A linear model as OpenVINS's IMU intrinsics in its ``kalibr_imu_chain.yaml`` form (``{"imu0": {...}}``).
+
+    Convention (:data:`OPENVINS_CONVENTION`): OpenVINS corrects ``a_I = R_IMUtoACC^T Ta^{-1} (a_m - b_a)``
+    and ``w_I = R_IMUtoGYRO^T Tw^{-1} (w_m - b_g)`` (``Tg`` = 0), i.e. the forward matrices are
+    ``S_a = Ta R_IMUtoACC`` and ``S_g = Tw R_IMUtoGYRO`` (input unit per m/s^2 or rad/s), split with
+    :func:`lower_times_rotation`. ``Tw``, ``Ta`` are forward (OpenVINS inverts them into ``Dw``, ``Da``)
+    and lower triangular, as OpenVINS's ``"kalibr"`` IMU model requires. The IMU frame ``I`` is jaxcal's
+    calibrated frame.
+
+    Args:
+        model: a linear model with ``acc`` and ``gyr``.
+        imu_fields: further ``imu0`` entries (e.g. ``rostopic``, ``update_rate``, noise densities),
+            added after jaxcal's; they may not replace them.
+
+    Raises:
+        ModelError: the model is not linear, lacks a sensor, or has a singular matrix.
+        ValueError: ``imu_fields`` would replace a calibration key.
+    """
+    cals = physical_cals(model)
+    Ta, R_IMUtoACC = lower_times_rotation(np.linalg.inv(cals["acc"].A))
+    Tw, R_IMUtoGYRO = lower_times_rotation(np.linalg.inv(cals["gyr"].A))
+    imu = {
+        "model": "kalibr",
+        "Tw": _rows(Tw),
+        "R_IMUtoGYRO": _rows(R_IMUtoGYRO),
+        "Ta": _rows(Ta),
+        "R_IMUtoACC": _rows(R_IMUtoACC),
+        "Tg": _rows(np.zeros((3, 3))),
+        **_jaxcal_fields(model, cals),
+    }
+    return {"imu0": _merge(imu, imu_fields)}
+
+
+def _merge(imu: dict[str, Any], extra: Mapping[str, Any] | None) -> dict[str, Any]:
+    clash = sorted(set(extra or {}) & set(imu))
+    if clash:
+        raise ValueError(f"imu_fields may not replace the calibration keys {', '.join(clash)}")
+    return {**imu, **(extra or {})}
+
+
+def yaml_document(fmt: str, d: Mapping[str, Any]) -> str:
+    """The YAML text of :func:`to_kalibr`'s (``fmt="kalibr"``) or :func:`to_openvins`'s (``"openvins"``) dict.
+
+    A ``#`` comment header states the convention; the OpenVINS file starts with ``%YAML:1.0`` as
+    OpenVINS's own configuration files do (its OpenCV reader expects it; a YAML reader skips that
+    first line). Floats are written with their shortest round-trip ``repr``.
+
+    Args:
+        fmt: ``"kalibr"`` or ``"openvins"``.
+        d: the export's dict.
+
+    Raises:
+        ValueError: unknown ``fmt``.
+    """
+    conventions = {"kalibr": KALIBR_CONVENTION, "openvins": OPENVINS_CONVENTION}
+    if fmt not in conventions:
+        raise ValueError(f"unknown YAML export format {fmt!r} (kalibr, openvins)")
+    head = [f"# IMU calibration exported by jaxcal {__version__}.", "#"]
+    head += [f"# {line}".rstrip() for line in conventions[fmt].splitlines()]
+    body = yaml.safe_dump(dict(d), sort_keys=False, default_flow_style=None, width=200)
+    first = ["%YAML:1.0"] if fmt == "openvins" else []
+    return "\n".join(first + head) + "\n" + body

@@ -16,10 +16,23 @@ import subprocess
 import jax
 import numpy as np
 import pytest
+import yaml
 
 from jaxcal import methods
 from jaxcal.cli import main
-from jaxcal.export import EQUATION, is_linear, linear_cals, linear_methods, to_c_header, to_json
+from jaxcal.constants import G0
+from jaxcal.export import (
+    EQUATION,
+    is_linear,
+    linear_cals,
+    linear_methods,
+    lower_times_rotation,
+    to_c_header,
+    to_json,
+    to_kalibr,
+    to_openvins,
+    yaml_document,
+)
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import Recording, save_recording
@@ -228,3 +241,144 @@ def test_cli_export_refuses_to_overwrite_its_input(tmp_path, capsys):
 def test_bad_c_name_is_refused_by_the_library():
     with pytest.raises(ValueError, match="not an identifier"):
         to_c_header(_model("linear"), name="a-b")
+
+
+# ----------------------------------------------------------------------------- Kalibr and OpenVINS (YAML)
+# Each file is read back with yaml.safe_load and applied with that tool's own equation, written here from
+# its source, independently of jaxcal.export; the result must be jaxcal apply's output in m/s^2 and rad/s.
+# Measured max |difference| over the largest calibrated value (acc, gyr), first 300 samples: kalibr linear
+# 5.5e-16, 4.9e-16, multipos 1.8e-16, 5.2e-16; openvins linear 4.5e-16, 3.2e-16, multipos 1.8e-16, 4.2e-16
+# (a few ulp: the tools' equations invert triangular factors, jaxcal applies S^{-1} directly).
+YAML_REL_TOL = 1e-14
+
+
+def _read_yaml(path) -> dict:
+    text = path.read_text()
+    if text.startswith("%YAML:1.0"):  # OpenVINS/OpenCV directive; not YAML 1.1 syntax, so a YAML reader skips it
+        text = text.split("\n", 1)[1]
+    return yaml.safe_load(text)
+
+
+def _kalibr_apply(imu: dict, alpha: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kalibr's scale-misalignment model inverted, per sample.
+
+    ethz-asl/kalibr aslam_offline_calibration/kalibr/python/kalibr_imu_camera_calibration/IccSensors.py,
+    class IccScaledMisalignedImu: addAccelerometerErrorTerms predicts ``a = M * (C_i_b * a_b) + b_i``
+    (lever arm r_b = 0), addGyroscopeErrorTerms ``w = M * (C_gyro_b * w_b) + Ma * (C_gyro_b * a_b) + b_i``
+    with ``C_gyro_b = C_gyro_i * C_i_b``; getTransformationFromBodyToImu gives T_i_b's rotation C_i_b.
+    """
+    C_i_b = np.asarray(imu["T_i_b"], np.float64)[:3, :3]
+    M_a = np.asarray(imu["accelerometers"]["M"], np.float64)
+    M_g = np.asarray(imu["gyroscopes"]["M"], np.float64)
+    A_g = np.asarray(imu["gyroscopes"]["A"], np.float64)
+    C_gyro_i = np.asarray(imu["gyroscopes"]["C_gyro_i"], np.float64)
+    b_a, b_g = np.asarray(imu["jaxcal_b_a"], np.float64), np.asarray(imu["jaxcal_b_g"], np.float64)
+    C_gyro_b = C_gyro_i @ C_i_b
+    a_b = np.stack([C_i_b.T @ np.linalg.solve(M_a, y - b_a) for y in alpha])
+    w_b = np.stack([C_gyro_b.T @ np.linalg.solve(M_g, y - b_g - A_g @ (C_gyro_b @ a)) for y, a in zip(omega, a_b)])
+    return a_b, w_b
+
+
+def _openvins_apply(imu: dict, a_m: np.ndarray, w_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """OpenVINS's correction of raw IMU samples, per sample.
+
+    rpng/open_vins ov_msckf/src/core/VioManagerOptions.h (print_and_load_state): ``Dw = Tw^{-1}``,
+    ``Da = Ta^{-1}``, ``R_GYROtoIMU = R_IMUtoGYRO^T``, ``R_ACCtoIMU = R_IMUtoACC^T``, and the "kalibr" IMU
+    model keeps the lower triangle of Dw, Da (vec_dw << Dw.block<3,1>(0,0), Dw.block<2,1>(1,1), Dw(2,2));
+    ov_msckf/src/state/Propagator.cpp: ``a_hat = R_ACCtoIMU * Da * (a_m - b_a)``,
+    ``w_hat = R_GYROtoIMU * Dw * (w_m - b_g - Tg * a_hat)`` (docs.openvins.com/propagation_analytical.html).
+    """
+    Dw = np.tril(np.linalg.inv(np.asarray(imu["Tw"], np.float64)))
+    Da = np.tril(np.linalg.inv(np.asarray(imu["Ta"], np.float64)))
+    R_GYROtoIMU = np.asarray(imu["R_IMUtoGYRO"], np.float64).T
+    R_ACCtoIMU = np.asarray(imu["R_IMUtoACC"], np.float64).T
+    Tg = np.asarray(imu["Tg"], np.float64)
+    b_a, b_g = np.asarray(imu["jaxcal_b_a"], np.float64), np.asarray(imu["jaxcal_b_g"], np.float64)
+    a_hat = np.stack([R_ACCtoIMU @ Da @ (y - b_a) for y in a_m])
+    w_hat = np.stack([R_GYROtoIMU @ Dw @ (y - b_g - Tg @ a) for y, a in zip(w_m, a_hat)])
+    return a_hat, w_hat
+
+
+def _check_rotation(C: np.ndarray) -> None:
+    # Measured (random matrices of test_lower_times_rotation): |C C^T - I| <= 8.9e-16, |det C - 1| <= 6.7e-16.
+    np.testing.assert_allclose(C @ C.T, np.eye(3), atol=1e-14)
+    assert abs(np.linalg.det(C) - 1.0) < 1e-14
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+@pytest.mark.parametrize("method", sorted(RECORDINGS))
+def test_yaml_round_trip_matches_apply(fmt, method, tmp_path, capsys):
+    model = _model(method)
+    rec = RECORDINGS[method]()
+    save_model(model, tmp_path / "m.npz")
+    code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--out", tmp_path / "imu.yaml")
+    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1, err
+    text = (tmp_path / "imu.yaml").read_text()
+    assert text.startswith(("%YAML:1.0\n" if fmt == "openvins" else "") + "# IMU calibration exported by jaxcal")
+    imu = _read_yaml(tmp_path / "imu.yaml")["imu0"]
+    assert imu["jaxcal_input_unit_acc"] == model.meta["units"]["acc"]
+    y_a, y_g = (np.asarray(getattr(rec, s), np.float64)[:300] for s in ("acc", "gyr"))
+    if fmt == "kalibr":
+        assert imu["model"] == "scale-misalignment"
+        for M in (imu["accelerometers"]["M"], imu["gyroscopes"]["M"]):
+            assert np.all(np.triu(np.asarray(M), 1) == 0.0)  # lower triangular, as Kalibr's M_*_Dv pattern
+        _check_rotation(np.asarray(imu["gyroscopes"]["C_gyro_i"]))
+        _check_rotation(np.asarray(imu["T_i_b"])[:3, :3])
+        assert np.all(np.asarray(imu["gyroscopes"]["A"]) == 0.0)
+        a, w = _kalibr_apply(imu, y_a, y_g)
+    else:
+        assert imu["model"] == "kalibr"
+        for T in (imu["Tw"], imu["Ta"]):
+            assert np.all(np.triu(np.asarray(T), 1) == 0.0)
+        _check_rotation(np.asarray(imu["R_IMUtoGYRO"]))
+        _check_rotation(np.asarray(imu["R_IMUtoACC"]))
+        assert np.all(np.asarray(imu["Tg"]) == 0.0)
+        a, w = _openvins_apply(imu, y_a, y_g)
+    ref = methods.apply(model, rec)
+    assert _rel_err(a, G0 * np.asarray(ref["acc_cal"], np.float64)[:300]) < YAML_REL_TOL
+    assert _rel_err(w, np.asarray(ref["gyr_cal"], np.float64)[:300]) < YAML_REL_TOL
+
+
+def _random_matrices() -> list[np.ndarray]:
+    rng = np.random.default_rng(11)
+    mats = [rng.normal(size=(3, 3)) for _ in range(40)]  # about half with det < 0
+    mats += [np.diag([16384.0, 16000.0, 16500.0]) + rng.normal(0, 300, (3, 3)) for _ in range(10)]
+    mats += [np.eye(3), np.diag([2.0, -3.0, 4.0]), np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])]
+    return mats
+
+
+def test_lower_times_rotation():
+    worst = 0.0
+    for X in _random_matrices():
+        T, C = lower_times_rotation(X)
+        assert np.all(np.triu(T, 1) == 0.0)
+        _check_rotation(C)
+        d = np.diag(T)
+        assert np.all(d[:2] > 0) and (d[2] > 0) == (np.linalg.det(X) > 0)
+        worst = max(worst, float(np.max(np.abs(T @ C - X)) / np.max(np.abs(X))))
+    assert worst < 1e-14  # measured 8.4e-16
+
+
+def test_lower_times_rotation_refuses_a_singular_matrix():
+    with pytest.raises(ModelError, match="singular"):
+        lower_times_rotation(np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]]) * 0.0)
+
+
+def test_yaml_exports_need_both_sensors_and_keep_their_keys(tmp_path, capsys):
+    m = _model("linear")
+    acc_only = CalibrationModel("linear", ("acc",), {"acc": m.state["acc"]}, {"units": {"acc": "LSB"}})
+    for f in (to_kalibr, to_openvins):
+        with pytest.raises(ModelError, match="no gyr calibration"):
+            f(acc_only)
+        with pytest.raises(ValueError, match="may not replace"):
+            f(m, {"jaxcal_b_a": [0, 0, 0]})
+    d = to_kalibr(m, {"rostopic": "/imu0", "update_rate": 100.0})["imu0"]
+    assert d["rostopic"] == "/imu0" and d["update_rate"] == 100.0
+    with pytest.raises(ValueError, match="unknown YAML export format"):
+        yaml_document("vins", d)
+    save_model(acc_only, tmp_path / "a.npz")
+    code, out, err = _run(capsys, "export", tmp_path / "a.npz", "--format", "openvins", "--out", tmp_path / "o.yaml")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert "a.npz" in err and "no gyr calibration" in err and not (tmp_path / "o.yaml").exists()
+    code, _, err = _run(capsys, "export", tmp_path / "a.npz", "--format", "kalibr", "--out", tmp_path / "o.json")
+    assert code == 2 and "the kalibr export is written as .yaml" in err, err
