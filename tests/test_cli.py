@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxcal import cli, methods
+from jaxcal.cli import calibrate as cli_calibrate
 from jaxcal.cli import main
 from jaxcal.methods import CalibrationModel, Fitted, Method
 from jaxcal.model_file import load_model, save_model
@@ -219,7 +220,7 @@ def test_help_version_and_methods(capsys):
 def test_flag_defaults_are_the_options_types_defaults(name):
     """One source of truth: ``calibrate`` without method flags gives the method's default options."""
     args = cli.build_parser().parse_args(["calibrate", "--method", name, "r.npz", "--out", "m.npz"])
-    assert cli._method_options(args) == methods.REGISTRY[name].options()
+    assert cli_calibrate._method_options(args) == methods.REGISTRY[name].options()
 
 
 def _test_errors(sim_dir, model_path, tmp_path, capsys) -> dict[str, tuple[float, float]]:

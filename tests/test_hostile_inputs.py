@@ -357,7 +357,7 @@ def test_ctrl_c_while_writing_a_model_keeps_the_earlier_one(base, tmp_path, caps
 
 
 def test_simulate_failing_midway_leaves_no_folder(tmp_path, capsys, monkeypatch):
-    from jaxcal import cli
+    from jaxcal.cli import simulate as cli
     from jaxcal.recording import Recording, RecordingError
 
     def recs(seed, config, labels):

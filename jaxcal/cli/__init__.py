@@ -1,0 +1,70 @@
+"""The ``jaxcal`` command line: the parser built from the registered subcommands, and :func:`main`.
+
+:mod:`jaxcal.cli.core` holds the shared machinery (:class:`Command`, :func:`register_command`,
+argument types, atomic outputs); each subcommand lives in its own module and registers itself on
+import.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from jaxcal import __version__, readers
+from jaxcal.cli import calibrate, diagnose, export, importer, simulate, sweep  # noqa: F401 - they register their commands
+from jaxcal.cli.calibrate import OPTION_FLAGS
+from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _Parser, register_command
+from jaxcal.methods import ModelError
+from jaxcal.recording import RecordingError
+
+__all__ = ["COMMANDS", "OPTION_FLAGS", "PROG", "Command", "UsageError", "build_parser", "main", "register_command"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full argument parser (all registered subcommands)."""
+    parser = _Parser(
+        prog=PROG,
+        description="jaxcal: IMU (accelerometer + gyroscope) calibration in JAX. Recordings are .npz or .csv "
+        "files with t, acc and/or gyr in LSB (see CONVENTIONS.md). Exit status 2 on bad input.",
+        epilog="examples: jaxcal simulate dataset2 --out d2 --labels; "
+        "jaxcal calibrate --method linear d2/train.npz --out lin.npz; "
+        "jaxcal apply lin.npz d2/test_acc.npz --out cal.npz",
+    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub.required = True
+    for name, cmd in COMMANDS.items():
+        p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help)
+        cmd.add_arguments(p)
+    return parser
+
+
+def _bad_input_errors() -> tuple[type[BaseException], ...]:
+    """The exceptions that mean bad input (exit status 2, one line): usage, recording, model and
+    reader errors."""
+    return (UsageError, RecordingError, ModelError, readers.ReaderError)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI; returns the exit status (0 ok, 2 bad input, 130 interrupted).
+
+    Every command writes its output whole or not at all, so a refused or interrupted run leaves
+    nothing behind (and an earlier file at ``--out`` intact).
+    """
+    try:
+        parser = build_parser()
+        try:
+            args = parser.parse_args(argv)
+        except SystemExit as e:  # --help / --version
+            return int(e.code or 0)
+        return COMMANDS[args.command].run(args)
+    except _bad_input_errors() as e:
+        msg = " ".join(str(e).split())
+        prefix = "" if msg.startswith(PROG) else f"{PROG}: error: "
+        print(f"{prefix}{msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted (no partial output left behind)", file=sys.stderr)
+        return 130
+

@@ -1,0 +1,74 @@
+"""``jaxcal import``: public IMU formats to a jaxcal recording."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from jaxcal import readers
+from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _real, register_command
+from jaxcal.recording import save_recording
+
+__all__: list[str] = []
+
+
+# ----------------------------------------------------------------------------- import, diagnose
+
+
+def _mapping(text: str) -> dict[str, str]:
+    out = {}
+    for item in text.split(","):
+        if "=" not in item:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE[,NAME=VALUE...], got {text!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _add_import(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "format",
+        metavar="FORMAT",
+        help="imu_tk (ACC GYR files), imucal (CSV [sections.json]; needs --fs), euroc / tumvi (IMU CSV "
+        "[pose CSV]), mpu6050, fusion (x-io), broad (BROAD trial .mat), csv (generic; needs --columns)",
+    )
+    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format")
+    p.add_argument("--out", required=True, metavar="REC.npz", help="recording to write (.npz or .csv)")
+    p.add_argument("--fs", type=_real(0.0, 1e9), default=None, help="sample rate in Hz (imucal, csv without a time column)")
+    p.add_argument("--acc-unit", default=None, help="accelerometer unit where the file does not say (imucal)")
+    p.add_argument("--gyr-unit", default=None, help="gyroscope unit where the file does not say (imucal)")
+    p.add_argument("--time-unit", default=None, help="time unit of the files (imu_tk; default s)")
+    p.add_argument(
+        "--columns", type=_mapping, default=None, help="csv: conventions name=CSV column, e.g. t=time,acc_x=ax,..."
+    )
+    p.add_argument("--units", type=_mapping, default=None, help="csv: quantity=unit, e.g. t=ms,acc=m/s^2,gyr=deg/s")
+    p.add_argument("--skip-rows", type=_count(0, 10**9), default=None, help="csv: lines to skip before the header")
+
+
+def _run_import(args: argparse.Namespace) -> int:
+    if not args.out.lower().endswith((".npz", ".csv")):
+        raise UsageError(f"--out {args.out}: recordings are written as .npz or .csv")
+    _check_out_file(args.out, args.files)
+    names = {"fs": "fs", "acc_unit": "acc_unit", "gyr_unit": "gyr_unit", "time_unit": "time_unit",
+             "columns": "columns", "units": "units", "skip_rows": "skip_rows"}
+    options = {k: getattr(args, a) for a, k in names.items() if getattr(args, a) is not None}
+    try:
+        rec = readers.read(args.format, args.files, **options)
+    except readers.ReaderError as e:
+        raise UsageError(str(e)) from None
+    except TypeError as e:  # an option this format does not take
+        given = ", ".join("--" + k.replace("_", "-") for k in options) or "none"
+        raise UsageError(f"format {args.format!r} does not take the options given ({given}): {e}") from None
+    save_recording(rec, args.out)
+    print(f"{PROG}: wrote {args.out} ({rec.n} samples, {', '.join(rec.sensors())})", file=sys.stderr)
+    return 0
+
+register_command(
+    "import",
+    Command(
+        "convert a public IMU format to a jaxcal recording",
+        _add_import,
+        _run_import,
+        "Read FILE(s) in FORMAT (jaxcal.readers) and write a recording per CONVENTIONS.md.",
+    ),
+)
