@@ -16,7 +16,7 @@ export MPLBACKEND := Agg
 # numpy's BLAS threads only contend with XLA's on 2 cores (small products slow down 1000x under load).
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: install lock run run-full run-real lint test test-all test-latest margins clean
+.PHONY: install lock run run-full run-real lint test test-all test-latest margins dist clean
 
 install: $(STAMP)
 
@@ -46,6 +46,10 @@ run-full: $(STAMP)
 ## Public recordings and `jaxcal diagnose` (quick forms; the full forms: each script without --quick)
 run-real: $(STAMP)
 	$(BIN)/python -m experiments.run_all --group real --quick
+
+## The sdist and wheel users install (`pip install dist/jaxcal-*.whl`); tests/test_packaging.py builds them too.
+dist: $(STAMP)
+	$(BIN)/python -m build --outdir dist .
 
 ## Lint (pyflakes, pycodestyle errors, import order; config in pyproject.toml): a second of work, run first by `make test`.
 lint: $(STAMP)
@@ -81,4 +85,4 @@ margins: $(STAMP)
 	$(BIN)/python -m tests.margins $(MARGINS)/[1-5]_*.jsonl --perturbed $(MARGINS)/6_fastmath.jsonl > results/margins.md
 
 clean:
-	rm -rf $(VENV) .venv-latest .venv-lock $(MARGINS) .jax_cache .pytest_cache
+	rm -rf $(VENV) .venv-latest .venv-lock $(MARGINS) .jax_cache .pytest_cache build dist
