@@ -20,7 +20,7 @@ the conventions raises :class:`jaxcal.recording.RecordingError`.
 
 Readers do file input by design (with :mod:`jaxcal.recording`, this is the recording I/O
 boundary); they hold no state. Internally a reader fills a ``dict`` and hands it to
-:func:`jaxcal.recording.recording_from_dict` once (:func:`_finish`).
+:func:`jaxcal.recording.recording_from_dict` once (:func:`finish_recording`).
 """
 
 from __future__ import annotations
@@ -42,6 +42,9 @@ from jaxcal.recording import Recording, implausible, recording_from_dict
 __all__ = [
     "FORMATS",
     "ReaderError",
+    "attach_pose",
+    "finish_recording",
+    "unit_quaternions",
     "read",
     "read_imu_tk",
     "read_imucal",
@@ -207,7 +210,7 @@ def check_plausible(rec: Mapping[str, Any], where: str = "recording") -> None:
     The rule is :func:`jaxcal.recording.implausible` (the one every loaded recording passes too);
     here the message names the file's own column. ``rec`` is the ``name -> array`` mapping a
     reader is filling (with its ``_acc_columns`` / ``_gyr_columns`` labels), before
-    :func:`_finish` makes it a :class:`~jaxcal.recording.Recording`.
+    :func:`finish_recording` makes it a :class:`~jaxcal.recording.Recording`.
 
     Args:
         rec: the ``name -> array`` mapping a reader is filling.
@@ -223,7 +226,7 @@ def check_plausible(rec: Mapping[str, Any], where: str = "recording") -> None:
             raise ReaderError(f"{where}: column {col}: {why}; the declared {word} unit is wrong")
 
 
-def _finish(rec: dict[str, Any], where: str, plausible: bool = True) -> Recording:
+def finish_recording(rec: dict[str, Any], where: str, plausible: bool = True) -> Recording:
     """The reader's filled mapping as a validated :class:`~jaxcal.recording.Recording`: units
     plausible (naming the file's column), time strictly increasing, then the conventions' checks."""
     if plausible:
@@ -329,7 +332,7 @@ def read_generic_csv(
         rec["temp"] = _column(path, header, rows, columns["temp"])
     if fs is not None:
         rec["fs"] = float(fs)
-    return _finish(rec, str(path))
+    return finish_recording(rec, str(path))
 
 
 def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, time_unit: str = "s") -> Recording:
@@ -357,7 +360,7 @@ def read_imu_tk(acc_path: str | Path, gyr_path: str | Path, *, time_unit: str = 
         "gyr_unit": "LSB",
         "fs": float(1.0 / np.median(np.diff(t))),
     }
-    return _finish(rec, str(acc_path))
+    return finish_recording(rec, str(acc_path))
 
 
 def _txyz_table(p: Path) -> np.ndarray:
@@ -445,7 +448,7 @@ def read_imucal(
             sec[(ni >= start) & (ni <= end)] = k
         rec["section"] = sec
         rec["section_names"] = np.array(list(spans))
-    return _finish(rec, str(path))
+    return finish_recording(rec, str(path))
 
 
 def _positive_rate(fs: Any, where: str) -> float:
@@ -479,7 +482,7 @@ def _sections_json(path: Path) -> dict[str, tuple[float, float]]:
 
 
 def _quat_columns_xyzw_to_wxyz(q_xyzw: np.ndarray, where: str = "quaternion") -> np.ndarray:
-    return _unit_quaternions(np.concatenate([q_xyzw[:, 3:4], q_xyzw[:, :3]], axis=1), where)
+    return unit_quaternions(np.concatenate([q_xyzw[:, 3:4], q_xyzw[:, :3]], axis=1), where)
 
 
 def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.ndarray:
@@ -502,7 +505,7 @@ def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.nda
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
-def _attach_pose(rec: dict[str, Any], t_gt: np.ndarray, pos: np.ndarray, q_wxyz: np.ndarray,
+def attach_pose(rec: dict[str, Any], t_gt: np.ndarray, pos: np.ndarray, q_wxyz: np.ndarray,
                  max_gap: float, where: str = "pose") -> None:
     """Interpolate a pose track to the IMU times (linear / slerp, held at the ends).
 
@@ -546,7 +549,7 @@ def _time_cells(path: Path, header: list[str], rows: list[list[str]]) -> list[in
     return out
 
 
-def _unit_quaternions(q: np.ndarray, where: str) -> np.ndarray:
+def unit_quaternions(q: np.ndarray, where: str) -> np.ndarray:
     """Quaternions (K, 4), finite and of unit norm (within 1 %), renormalised exactly."""
     with np.errstate(over="ignore", invalid="ignore"):
         norm = np.linalg.norm(q, axis=1)
@@ -607,9 +610,9 @@ def read_euroc(imu_path: str | Path, pose_path: str | Path | None = None, *, max
                       dtype=np.float64)
         pos = np.stack([_column(pose_path, ph, prow, phdr[n]) for n in _EUROC_POSE[:3]], -1)
         q = np.stack([_column(pose_path, ph, prow, phdr[n]) for n in _EUROC_POSE[3:]], -1)
-        _attach_pose(rec, tg, pos, _unit_quaternions(q, f"{pose_path}: columns 'q_RS_*'"), max_gap,
+        attach_pose(rec, tg, pos, unit_quaternions(q, f"{pose_path}: columns 'q_RS_*'"), max_gap,
                      f"{pose_path}: column {ph[0]!r}")
-    return _finish(rec, str(imu_path))
+    return finish_recording(rec, str(imu_path))
 
 
 _TUMVI_IMU = ("angular_velocity.x", "angular_velocity.y", "angular_velocity.z",
@@ -654,9 +657,9 @@ def read_tumvi(imu_path: str | Path, gt_path: str | Path | None = None, *, max_g
         tg = _column(gt_path, gh, grows, "Time") - t0
         pos = np.stack([_column(gt_path, gh, grows, n) for n in _TUMVI_GT[:3]], -1)
         q_xyzw = np.stack([_column(gt_path, gh, grows, n) for n in _TUMVI_GT[3:]], -1)
-        _attach_pose(rec, tg, pos, _quat_columns_xyzw_to_wxyz(q_xyzw, f"{gt_path}: columns 'transform.rotation.*'"),
+        attach_pose(rec, tg, pos, _quat_columns_xyzw_to_wxyz(q_xyzw, f"{gt_path}: columns 'transform.rotation.*'"),
                      max_gap, f"{gt_path}: column 'Time'")
-    return _finish(rec, str(imu_path))
+    return finish_recording(rec, str(imu_path))
 
 
 # The MPU-6050 datasheet's sensitivities at its default full scales (+-2 g, +-250 deg/s): the
@@ -701,7 +704,7 @@ def read_mpu6050(path: str | Path) -> Recording:
     for name, v in meta.items():
         if name != "Fs":
             rec["meta_" + re.sub(r"\W+", "_", name.strip().lower())] = v
-    return _finish(rec, str(path))
+    return finish_recording(rec, str(path))
 
 
 def read_fusion(path: str | Path) -> Recording:
@@ -806,7 +809,7 @@ def read_broad(path: str | Path) -> Recording:
     q = ref["opt_quat"]
     ok = np.isfinite(q).all(axis=1)
     if ok.any():
-        q[ok] = _unit_quaternions(q[ok], f"{path}: variable 'opt_quat' (finite rows)")
+        q[ok] = unit_quaternions(q[ok], f"{path}: variable 'opt_quat' (finite rows)")
     rec: dict[str, Any] = {
         "t": np.arange(n) / fs, "acc": x["imu_acc"] / G0, "gyr": x["imu_gyr"], "acc_unit": "g",
         "gyr_unit": "rad/s", "fs": fs, "pos_ref": ref["opt_pos"], "quat_ref": q,
@@ -828,7 +831,7 @@ def read_broad(path: str | Path) -> Recording:
         info = np.asarray(m["info"])
         if info.dtype.kind == "U" and info.size == 1:
             rec["meta_info"] = str(info.item())
-    return _finish(rec, str(path), plausible=False)
+    return finish_recording(rec, str(path), plausible=False)
 
 
 def read(format: str, files: Sequence[str | Path], **options: Any) -> Recording:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from jaxcal import readers
+from jaxcal import readers, rosbag
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _real, register_command
-from jaxcal.recording import save_recording
+from jaxcal.recording import Recording, save_recording
 
 __all__: list[str] = []
 
@@ -30,9 +30,10 @@ def _add_import(p: argparse.ArgumentParser) -> None:
         "format",
         metavar="FORMAT",
         help="imu_tk (ACC GYR files), imucal (CSV [sections.json]; needs --fs), euroc / tumvi (IMU CSV "
-        "[pose CSV]), mpu6050, fusion (x-io), broad (BROAD trial .mat), csv (generic; needs --columns)",
+        "[pose CSV]), mpu6050, fusion (x-io), broad (BROAD trial .mat), csv (generic; needs --columns), "
+        "rosbag (one ROS1 .bag, ROS2 bag directory or .mcap; needs --imu-topic)",
     )
-    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format")
+    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format (rosbag: one BAG path)")
     p.add_argument("--out", required=True, metavar="REC.npz", help="recording to write (.npz or .csv)")
     p.add_argument("--fs", type=_real(0.0, 1e9), default=None, help="sample rate in Hz (imucal, csv without a time column)")
     p.add_argument("--acc-unit", default=None, help="accelerometer unit where the file does not say (imucal)")
@@ -43,6 +44,34 @@ def _add_import(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--units", type=_mapping, default=None, help="csv: quantity=unit, e.g. t=ms,acc=m/s^2,gyr=deg/s")
     p.add_argument("--skip-rows", type=_count(0, 10**9), default=None, help="csv: lines to skip before the header")
+    p.add_argument("--imu-topic", default=None, metavar="TOPIC", help="rosbag: the sensor_msgs/msg/Imu topic (required)")
+    p.add_argument("--pose-topic", default=None, metavar="TOPIC",
+                   help="rosbag: reference pose topic (PoseStamped, PoseWithCovarianceStamped, TransformStamped, "
+                   "Odometry or tf2_msgs/TFMessage)")
+    p.add_argument("--pose-frame", default=None, metavar="FRAME",
+                   help="rosbag: child_frame_id of the body's transform (required for a tf topic)")
+    p.add_argument("--time", choices=rosbag.TIME_SOURCES, default=None,
+                   help="rosbag: sample times from message header stamps (default) or the bag's receive time")
+
+
+_ROSBAG_FLAGS = ("imu_topic", "pose_topic", "pose_frame", "time")
+
+
+def _flags(names: dict[str, str] | tuple[str, ...], args: argparse.Namespace) -> list[str]:
+    """The given (non-default) options among ``names``, as flags."""
+    return ["--" + a.replace("_", "-") for a in names if getattr(args, a) is not None]
+
+
+def _read_rosbag(args: argparse.Namespace, csv_flags: list[str]) -> Recording:
+    if csv_flags:
+        raise UsageError(f"format 'rosbag' does not take {', '.join(csv_flags)}")
+    if len(args.files) != 1:
+        raise UsageError(f"format 'rosbag' takes one BAG path (a ROS1 .bag file, a ROS2 bag directory or an .mcap "
+                         f"file), got {len(args.files)}")
+    if args.imu_topic is None:
+        raise UsageError("format 'rosbag' needs --imu-topic TOPIC (a sensor_msgs/msg/Imu topic)")
+    return rosbag.read_rosbag(args.files[0], args.imu_topic, pose_topic=args.pose_topic, pose_frame=args.pose_frame,
+                              time=args.time or "header")
 
 
 def _run_import(args: argparse.Namespace) -> int:
@@ -52,8 +81,15 @@ def _run_import(args: argparse.Namespace) -> int:
     names = {"fs": "fs", "acc_unit": "acc_unit", "gyr_unit": "gyr_unit", "time_unit": "time_unit",
              "columns": "columns", "units": "units", "skip_rows": "skip_rows"}
     options = {k: getattr(args, a) for a, k in names.items() if getattr(args, a) is not None}
+    if args.format not in readers.FORMATS + ("rosbag",):
+        raise UsageError(f"unknown format {args.format!r}; expected one of {[*readers.FORMATS, 'rosbag']}")
+    if args.format != "rosbag" and _flags(_ROSBAG_FLAGS, args):
+        raise UsageError(f"{', '.join(_flags(_ROSBAG_FLAGS, args))}: only for the rosbag format, not {args.format!r}")
     try:
-        rec = readers.read(args.format, args.files, **options)
+        if args.format == "rosbag":
+            rec = _read_rosbag(args, _flags(names, args))
+        else:
+            rec = readers.read(args.format, args.files, **options)
     except readers.ReaderError as e:
         raise UsageError(str(e)) from None
     except TypeError as e:  # an option this format does not take

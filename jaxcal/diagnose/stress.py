@@ -7,7 +7,7 @@ Every function takes a :class:`~jaxcal.recording.Recording` and returns a NEW on
 ``quat_ref`` (N, 4) (Hamilton ``[w, x, y, z]``, reference body to world) on the IMU time grid, NaN
 rows marking reference gaps, optionally ``ref_valid`` (N,) bool and the original reference track
 ``gt_t`` (M,), ``gt_pos`` (M, 3), ``gt_quat`` (M, 4) at its own times (as
-:func:`jaxcal.readers._attach_pose` leaves it). Other fields are carried over unchanged.
+:func:`jaxcal.readers.attach_pose` leaves it). Other fields are carried over unchanged.
 
 Truth vocabulary (CONVENTIONS.md): ``time_offset`` tau > 0 means the IMU reads x(t - tau), i.e. it
 lags the reference; ``lever_arm`` r is the IMU position relative to the reference point in the
@@ -348,7 +348,7 @@ def decimate_reference(
        outside the source or in one of its gaps are lost.
     3. Random dropout runs (lengths uniform in ``dropout_len`` s, starts uniform) are removed until
        a fraction ``>= dropout_frac`` of the stamps is gone (``dropout_frac = 0``: none).
-    4. The track is attached to the IMU grid by :func:`jaxcal.readers._attach_pose` with
+    4. The track is attached to the IMU grid by :func:`jaxcal.readers.attach_pose` with
        ``max_gap = 1.5 / rate_hz``: ``pos_ref``/``quat_ref`` interpolated, ``ref_valid`` False
        across every missing stamp (dropouts) and outside the track, ``gt_t``/``gt_pos``/
        ``gt_quat`` = the decimated track. With ``nan_invalid`` (default) the pose is also NaN
@@ -369,7 +369,7 @@ def decimate_reference(
         max_gap: longest source spacing interpolated across (s); None: as in :func:`shift_reference_clock`.
         nan_invalid: also set the pose to NaN where ``ref_valid`` is False.
     """
-    from jaxcal.readers import _attach_pose
+    from jaxcal.readers import attach_pose
 
     rate = float(rate_hz)
     sample = _sampler(rec, max_gap)
@@ -395,8 +395,8 @@ def decimate_reference(
         keep &= ~drop
     if keep.sum() < 2:
         raise ValueError("decimated reference has fewer than 2 samples")
-    pose = {"t": rec.t}  # _attach_pose fills pos_ref, quat_ref, ref_valid and the track gt_*
-    _attach_pose(pose, stamps[keep], p[keep], q[keep], 1.5 / rate, where="decimated pose")
+    pose = {"t": rec.t}  # attach_pose fills pos_ref, quat_ref, ref_valid and the track gt_*
+    attach_pose(pose, stamps[keep], p[keep], q[keep], 1.5 / rate, where="decimated pose")
     if nan_invalid:
         bad = ~pose["ref_valid"]
         pose["pos_ref"] = np.where(bad[:, None], np.nan, pose["pos_ref"])
