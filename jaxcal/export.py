@@ -1,4 +1,4 @@
-"""Exports of a linear calibration model that leave jaxcal: plain JSON, a C99 header, Kalibr and OpenVINS YAML.
+"""Exports of a linear calibration model that leave jaxcal, and imports that bring one back.
 
 A linear model (a method whose ``apply`` is :func:`~jaxcal.methods.base.apply_linear_state`:
 ``linear``, ``multipos``, ``online``) holds per sensor an affine calibration, applied as::
@@ -9,9 +9,10 @@ A linear model (a method whose ``apply`` is :func:`~jaxcal.methods.base.apply_li
 ``b``: the bias (3,) in that same unit, subtracted first; ``A``: a 3x3 matrix multiplying the
 column vector ``y - b`` from the left (it is the inverse ``S^{-1}`` of the forward model
 ``y = S x + b``); ``x``: the calibrated sample in ``g`` (accelerometer) or ``rad/s`` (gyroscope).
-Both exports write ``A`` and ``b`` of this applied form (:class:`~jaxcal.sensor.LinearCal`), never
-the forward ``S``, and say so in the file. Numbers are written with Python's shortest round-trip
-``repr``, so a reader parsing them as IEEE doubles gets jaxcal's float64 values exactly.
+The plain JSON (:func:`to_json`) and the C header (:func:`to_c_header`) write ``A`` and ``b`` of
+this applied form (:class:`~jaxcal.sensor.LinearCal`), never the forward ``S``, and say so in the
+file. Numbers are written with Python's shortest round-trip ``repr``, so a reader parsing them as
+IEEE doubles gets jaxcal's float64 values exactly.
 
 Non-linear models (``nn``, ``cubic``, ``online-thesis``) are refused: a 3x3 matrix and a bias cannot
 hold them.
@@ -23,9 +24,20 @@ rad/s, and keep the raw input ``y`` in the model's own input unit (the unit conv
 counts-to-physical scale are folded into their matrices; a model fitted on ``LSB`` expects raw counts
 on the IMU topic). Neither format holds a constant bias (both estimate biases online as random
 walks), so ``b`` is written under the extra keys ``jaxcal_b_a`` / ``jaxcal_b_g`` (input unit),
-which both tools ignore; use them as the initial bias or subtract them upstream.
+which both tools ignore; use them as the initial bias or subtract them upstream. The noise keys of
+a Kalibr ``imu.yaml`` (:data:`NOISE_KEYS`, :func:`noise_fields`) go in as ``imu_fields``; without
+them the file says, in a comment, which keys are missing.
 
-Pure functions, no I/O: the ``jaxcal export`` command writes the files.
+imucal's ``FerrarisCalibrationInfo`` JSON (:func:`to_imucal`, :data:`IMUCAL_CONVENTION`) holds the
+forward matrix as ``K @ R`` (diagonal scale times unit-row misalignment, :func:`scale_misalignment`)
+in m/s^2 and deg/s; imucal's own ``CalibrationInfo.from_json_file`` reads it.
+
+Imports (:func:`import_model` of a :func:`read_document`): imucal's CalibrationInfo JSON (written by
+imucal or by jaxcal), jaxcal's plain JSON, and the Kalibr / OpenVINS YAML jaxcal writes, each as a
+``linear`` model (forward ``S``, ``b`` per sensor); what a linear model cannot hold (a gyro
+g-sensitivity, a lever arm, another IMU model) is refused with one line.
+
+Pure functions, no I/O: the ``jaxcal export`` and ``jaxcal import-model`` commands read and write the files.
 """
 
 from __future__ import annotations
@@ -34,7 +46,7 @@ import json
 import math
 import re
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -45,20 +57,37 @@ from jaxcal import __version__, methods
 from jaxcal.arrays import Array
 from jaxcal.constants import G0, PHYS_UNIT
 from jaxcal.methods import CalibrationModel, ModelError
-from jaxcal.methods.base import affine_state, apply_linear_state
+from jaxcal.methods.base import MAX_CONDITION, affine_state, apply_linear_state, check_linear_state
 from jaxcal.sensor import LinearCal
 
 __all__ = [
     "EQUATION",
+    "IMPORT_FORMATS",
+    "IMUCAL_CONVENTION",
+    "IMUCAL_FORMAT_VERSION",
     "JSON_FORMAT",
     "KALIBR_CONVENTION",
+    "KALIBR_KEYS",
+    "NOISE_KEYS",
     "OPENVINS_CONVENTION",
+    "OPENVINS_KEYS",
+    "Imported",
+    "from_imucal",
+    "from_json_export",
+    "from_kalibr",
+    "from_openvins",
+    "import_model",
     "is_linear",
     "linear_cals",
     "linear_methods",
     "lower_times_rotation",
+    "missing_noise_keys",
+    "noise_fields",
     "physical_cals",
+    "read_document",
+    "scale_misalignment",
     "to_c_header",
+    "to_imucal",
     "to_json",
     "to_kalibr",
     "to_openvins",
@@ -249,7 +278,7 @@ M_a, M_g: lower triangular (accelerometers.M, gyroscopes.M); C_gyro_i: rotation 
 C_i_b: rotation block of T_i_b (translation 0), from jaxcal's calibrated frame b to Kalibr's IMU frame i,
 whose axes Kalibr ties to the accelerometer (lower-triangular M_a). alpha, omega: raw samples in the
 model's input unit (jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (Kalibr stores no
-constant bias). Matrices are lists of rows."""
+constant bias). Noise keys: Kalibr's imu.yaml values (SI, continuous time). Matrices are lists of rows."""
 """The convention header of :func:`to_kalibr`'s file (also in its ``yaml_document``)."""
 
 OPENVINS_CONVENTION = """\
@@ -260,8 +289,9 @@ propagation_analytical):
   a_I = R_ACCtoIMU @ Da @ (a_m - b_a)                  [m/s^2]
   w_I = R_GYROtoIMU @ Dw @ (w_m - b_g - Tg @ a_I)      [rad/s]   (Tg = 0: jaxcal fits no g-sensitivity)
 Tw, Ta: lower triangular (the "kalibr" model keeps the lower triangle of Dw, Da); I: jaxcal's calibrated
-frame. a_m, w_m: raw samples in the model's input unit (jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a,
-jaxcal_b_g in that unit (OpenVINS stores no constant bias). Matrices are lists of rows."""
+frame (T_i_b identity, time_offset 0). a_m, w_m: raw samples in the model's input unit
+(jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (OpenVINS stores no constant
+bias). Noise keys: Kalibr's imu.yaml values (SI, continuous time). Matrices are lists of rows."""
 """The convention header of :func:`to_openvins`'s file (also in its ``yaml_document``)."""
 
 _IMU_SENSORS = ("acc", "gyr")
@@ -362,7 +392,7 @@ def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = No
         "gyroscopes": {"M": _rows(M_g), "A": _rows(np.zeros((3, 3))), "C_gyro_i": _rows(C_gyro_i)},
         **_jaxcal_fields(model, cals),
     }
-    return {"imu0": _merge(imu, imu_fields)}
+    return {"imu0": _ordered(_merge(imu, imu_fields), KALIBR_KEYS)}
 
 
 def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -373,7 +403,9 @@ def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = 
     ``S_a = Ta R_IMUtoACC`` and ``S_g = Tw R_IMUtoGYRO`` (input unit per m/s^2 or rad/s), split with
     :func:`lower_times_rotation`. ``Tw``, ``Ta`` are forward (OpenVINS inverts them into ``Dw``, ``Da``)
     and lower triangular, as OpenVINS's ``"kalibr"`` IMU model requires. The IMU frame ``I`` is jaxcal's
-    calibrated frame.
+    calibrated frame: ``T_i_b`` is the identity, ``time_offset`` 0. With the noise keys of a Kalibr
+    ``imu.yaml`` in ``imu_fields`` (:func:`noise_fields`) the file has every key of OpenVINS's own
+    ``kalibr_imu_chain.yaml`` (:data:`OPENVINS_KEYS`, in that order), then jaxcal's ``jaxcal_*`` keys.
 
     Args:
         model: a linear model with ``acc`` and ``gyr``.
@@ -388,6 +420,8 @@ def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = 
     Ta, R_IMUtoACC = lower_times_rotation(np.linalg.inv(cals["acc"].A))
     Tw, R_IMUtoGYRO = lower_times_rotation(np.linalg.inv(cals["gyr"].A))
     imu = {
+        "T_i_b": _rows(np.eye(4)),
+        "time_offset": 0.0,
         "model": "kalibr",
         "Tw": _rows(Tw),
         "R_IMUtoGYRO": _rows(R_IMUtoGYRO),
@@ -396,7 +430,7 @@ def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = 
         "Tg": _rows(np.zeros((3, 3))),
         **_jaxcal_fields(model, cals),
     }
-    return {"imu0": _merge(imu, imu_fields)}
+    return {"imu0": _ordered(_merge(imu, imu_fields), OPENVINS_KEYS)}
 
 
 def _merge(imu: dict[str, Any], extra: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -411,7 +445,8 @@ def yaml_document(fmt: str, d: Mapping[str, Any]) -> str:
 
     A ``#`` comment header states the convention; the OpenVINS file starts with ``%YAML:1.0`` as
     OpenVINS's own configuration files do (its OpenCV reader expects it; a YAML reader skips that
-    first line). Floats are written with their shortest round-trip ``repr``.
+    first line). When ``d["imu0"]`` lacks any of the noise keys (:data:`NOISE_KEYS`), a comment line
+    names them. Floats are written with their shortest round-trip ``repr``.
 
     Args:
         fmt: ``"kalibr"`` or ``"openvins"``.
@@ -425,6 +460,487 @@ def yaml_document(fmt: str, d: Mapping[str, Any]) -> str:
         raise ValueError(f"unknown YAML export format {fmt!r} (kalibr, openvins)")
     head = [f"# IMU calibration exported by jaxcal {__version__}.", "#"]
     head += [f"# {line}".rstrip() for line in conventions[fmt].splitlines()]
+    missing = missing_noise_keys(d)
+    if missing:
+        head += ["#", f"# Missing IMU noise keys (Kalibr imu.yaml, SI units): {', '.join(missing)}.",
+                 "# Add them before the tool reads this file, e.g. `jaxcal export ... --noise imu.yaml` (from `jaxcal noise`)."]
     body = yaml.safe_dump(dict(d), sort_keys=False, default_flow_style=None, width=200)
     first = ["%YAML:1.0"] if fmt == "openvins" else []
     return "\n".join(first + head) + "\n" + body
+
+
+def _ordered(d: Mapping[str, Any], order: tuple[str, ...]) -> dict[str, Any]:
+    """``d`` with the keys of ``order`` first, in that order, then the others as they come."""
+    return {**{k: d[k] for k in order if k in d}, **{k: v for k, v in d.items() if k not in order}}
+
+
+# ----------------------------------------------------------------------------- noise keys (Kalibr imu.yaml)
+
+NOISE_KEYS = (
+    "accelerometer_noise_density",
+    "accelerometer_random_walk",
+    "gyroscope_noise_density",
+    "gyroscope_random_walk",
+    "rostopic",
+    "update_rate",
+)
+"""The keys of Kalibr's ``imu.yaml`` (IMU noise model, SI units, continuous time), which
+:func:`noise_fields` reads and both YAML exports carry when given."""
+
+OPENVINS_KEYS = (
+    "T_i_b",
+    "accelerometer_noise_density",
+    "accelerometer_random_walk",
+    "gyroscope_noise_density",
+    "gyroscope_random_walk",
+    "rostopic",
+    "time_offset",
+    "update_rate",
+    "model",
+    "Tw",
+    "R_IMUtoGYRO",
+    "Ta",
+    "R_IMUtoACC",
+    "Tg",
+)
+"""The ``imu0`` keys of OpenVINS's own ``kalibr_imu_chain.yaml`` (rpng/open_vins
+config/rpng_sim/kalibr_imu_chain.yaml), in its order; :func:`to_openvins` writes them all when
+given the noise keys, then jaxcal's ``jaxcal_*`` keys."""
+
+KALIBR_KEYS = ("T_i_b", *NOISE_KEYS, "model", "accelerometers", "gyroscopes")
+"""The order of the ``imu0`` keys of :func:`to_kalibr`'s file (then jaxcal's ``jaxcal_*`` keys)."""
+
+
+def noise_fields(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The noise keys (:data:`NOISE_KEYS`) of a Kalibr ``imu.yaml``, checked, for a YAML export's ``imu_fields``.
+
+    ``doc`` is the parsed file: Kalibr's flat ``imu.yaml`` (the keys at top level, as
+    ``jaxcal noise`` and Kalibr's wiki write it) or a chain file with them under ``imu0`` (OpenVINS's
+    ``kalibr_imu_chain.yaml``). The four densities (``>= 0``, SI units: m/s^2/sqrt(Hz),
+    m/s^3/sqrt(Hz), rad/s/sqrt(Hz), rad/s^2/sqrt(Hz)) and ``update_rate`` (Hz, ``> 0``) are required,
+    ``rostopic`` (a non-empty string) is taken when present. Other keys are ignored.
+
+    Args:
+        doc: the parsed YAML document.
+
+    Raises:
+        ValueError: not a mapping, a key missing, or a value of the wrong kind (one line).
+    """
+    if not isinstance(doc, Mapping):
+        raise ValueError(f"expected a YAML mapping of Kalibr imu.yaml keys, got {type(doc).__name__}")
+    if isinstance(doc.get("imu0"), Mapping):
+        doc = doc["imu0"]
+    numbers = [k for k in NOISE_KEYS if k != "rostopic"]
+    missing = [k for k in numbers if k not in doc]
+    if missing:
+        raise ValueError(f"no {', '.join(missing)} (the Kalibr imu.yaml noise keys)")
+    out: dict[str, Any] = {}
+    for k in numbers:
+        v = doc[k]
+        ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+        if not ok or v < 0 or (k == "update_rate" and v == 0):
+            want = "a rate > 0 in Hz" if k == "update_rate" else "a finite number >= 0"
+            raise ValueError(f"{k} must be {want}, got {v!r}")
+        out[k] = float(v)
+    if "rostopic" in doc:
+        if not isinstance(doc["rostopic"], str) or not doc["rostopic"]:
+            raise ValueError(f"rostopic must be a topic name, got {doc['rostopic']!r}")
+        out["rostopic"] = doc["rostopic"]
+    return {k: out[k] for k in NOISE_KEYS if k in out}
+
+
+def missing_noise_keys(d: Mapping[str, Any]) -> list[str]:
+    """The :data:`NOISE_KEYS` that a YAML export's dict (``{"imu0": {...}}``) lacks."""
+    imu = d.get("imu0", {})
+    return [k for k in NOISE_KEYS if k not in imu]
+
+
+# ----------------------------------------------------------------------------- imucal CalibrationInfo (JSON)
+
+IMUCAL_FORMAT_VERSION = "2.0.0"
+"""imucal's ``_format_version`` of the CalibrationInfo JSON this module writes and reads (imucal 2.x)."""
+
+IMUCAL_CONVENTION = (
+    "imucal FerrarisCalibrationInfo (imucal/ferraris_calibration_info.py, calibrate): "
+    "acc = inv(R_a) @ inv(K_a) @ (acc_raw - b_a) in acc_unit; "
+    "gyr = inv(R_g) @ inv(K_g) @ (gyr_raw - K_ga @ acc - b_g) in gyr_unit; "
+    "acc_raw, gyr_raw, b_a, b_g in from_acc_unit, from_gyr_unit. Matrices are lists of rows. "
+    "K_a @ R_a and K_g @ R_g are the forward matrices S of raw = S x + b (raw per output unit); "
+    "K = diag(row norms of S) is the scale, R = inv(K) @ S the misalignment, rows of unit norm, as imucal's "
+    "Ferraris fit normalises them. K_ga = 0: jaxcal fits no g-sensitivity."
+)
+"""The convention written into the ``comment`` field of :func:`to_imucal`'s JSON (imucal's
+``from_json`` accepts no extra keys, so the convention lives in its one free-text field)."""
+
+_IMUCAL_ACC_UNIT, _IMUCAL_GYR_UNIT = "m/s^2", "deg/s"
+_PER_JAXCAL_UNIT = {"acc": {"g": 1.0, "m/s^2": G0}, "gyr": {"rad/s": 1.0, "deg/s": 180.0 / math.pi}}
+"""Physical units each tool may use, as their value per jaxcal's ``g`` / ``rad/s``."""
+
+
+def _forward(model: CalibrationModel, sensor: str) -> tuple[np.ndarray, np.ndarray]:
+    """The stored forward model ``y = S x + b`` of a linear model's sensor (float64 numpy)."""
+    p = model.state[sensor]
+    return np.asarray(p["S"], np.float64), np.asarray(p["b"], np.float64)
+
+
+def scale_misalignment(S: Float[Array, "3 3"]) -> tuple[np.ndarray, np.ndarray]:
+    """``S = K @ R``: ``K = diag(row norms of S)`` (positive), ``R = inv(K) @ S`` (rows of unit norm).
+
+    imucal's factorisation (its Ferraris fit, eq. 12 and 22-23 of Ferraris et al.): defined for every
+    ``S`` without a zero row, exact up to one rounding per entry of ``R``.
+
+    Args:
+        S: a 3x3 forward matrix.
+
+    Raises:
+        ModelError: ``S`` has a zero or non-finite row.
+    """
+    S = np.asarray(S, np.float64)
+    k = np.sqrt(np.sum(S * S, axis=1))
+    if not (np.all(np.isfinite(k)) and np.all(k > 0)):
+        raise ModelError("a calibration matrix with a zero or non-finite row has no scale x misalignment form")
+    return np.diag(k), S / k[:, None]
+
+
+def to_imucal(model: CalibrationModel) -> dict[str, Any]:
+    """A linear model as imucal's ``FerrarisCalibrationInfo`` JSON (``json.dumps`` it as is).
+
+    imucal (:data:`IMUCAL_CONVENTION`) calibrates ``acc = R_a^{-1} K_a^{-1} (acc_raw - b_a)`` and
+    ``gyr = R_g^{-1} K_g^{-1} (gyr_raw - K_ga acc - b_g)``, i.e. ``K R`` is the forward matrix. jaxcal's
+    stored forward ``S`` (raw per g, raw per rad/s) is converted to raw per imucal's default output
+    units (``acc_unit`` m/s^2, ``gyr_unit`` deg/s) and factored with :func:`scale_misalignment`;
+    ``K_ga`` is zero; ``b`` and the raw input are in the model's input unit (``from_acc_unit`` /
+    ``from_gyr_unit``: e.g. ``LSB``; ``None`` when the model does not record it). The keys are
+    exactly those of imucal's ``CalibrationInfo.to_json`` (``cal_type`` ``"Ferraris"``,
+    ``_format_version`` :data:`IMUCAL_FORMAT_VERSION`); the convention goes in ``comment``.
+
+    Args:
+        model: a linear model with ``acc`` and ``gyr`` (imucal's calibration holds both).
+
+    Raises:
+        ModelError: the model is not linear, lacks a sensor, or has a zero row.
+    """
+    linear_cals(model)  # refuses non-linear models
+    missing = [s for s in _IMU_SENSORS if s not in model.sensors]
+    if missing:
+        raise ModelError(f"imucal's CalibrationInfo holds an accelerometer and a gyroscope, but the model has no "
+                         f"{' or '.join(missing)} calibration (sensors: {', '.join(model.sensors)})")
+    out_unit = {"acc": _IMUCAL_ACC_UNIT, "gyr": _IMUCAL_GYR_UNIT}
+    paras: dict[str, Any] = {}
+    for s, tag in (("acc", "a"), ("gyr", "g")):
+        S, b = _forward(model, s)
+        K, R = scale_misalignment(S / _PER_JAXCAL_UNIT[s][out_unit[s]])
+        paras[s] = {f"K_{tag}": _rows(K), f"R_{tag}": _rows(R), f"b_{tag}": [float(v) for v in b]}
+    return {
+        "acc_unit": out_unit["acc"],
+        "gyr_unit": out_unit["gyr"],
+        "from_acc_unit": _units(model, "acc")[0],
+        "from_gyr_unit": _units(model, "gyr")[0],
+        "comment": f"{IMUCAL_CONVENTION} Exported by jaxcal {__version__} from a '{model.method}' model.",
+        **paras["acc"],
+        "K_g": paras["gyr"]["K_g"],
+        "R_g": paras["gyr"]["R_g"],
+        "K_ga": _rows(np.zeros((3, 3))),
+        "b_g": paras["gyr"]["b_g"],
+        "cal_type": "Ferraris",
+        "_format_version": IMUCAL_FORMAT_VERSION,
+    }
+
+
+# ----------------------------------------------------------------------------- imports
+
+IMPORT_FORMATS = ("imucal", "json", "kalibr", "openvins")
+"""The formats :func:`import_model` reads."""
+
+
+class Imported(NamedTuple):
+    """What :func:`import_model` returns.
+
+    Args:
+        model: a ``linear`` :class:`~jaxcal.methods.CalibrationModel` (forward ``S``, ``b`` per sensor).
+        notes: one-line remarks on what the import assumed or dropped (e.g. a bias the file lacks).
+    """
+
+    model: CalibrationModel
+    notes: tuple[str, ...]
+
+
+def read_document(fmt: str, text: str) -> Any:
+    """The parsed document of an import file's text: JSON (imucal, json) or YAML (kalibr, openvins).
+
+    An OpenCV ``%YAML:1.0`` first line (OpenVINS's files) is skipped.
+
+    Args:
+        fmt: one of :data:`IMPORT_FORMATS`.
+        text: the file's text.
+
+    Raises:
+        ModelError: unknown format or text that does not parse (one line).
+    """
+    if fmt not in IMPORT_FORMATS:
+        raise ModelError(f"unknown import format {fmt!r} ({', '.join(IMPORT_FORMATS)})")
+    try:
+        if fmt in ("imucal", "json"):
+            return json.loads(text)
+        if text.startswith("%YAML:"):
+            text = text.split("\n", 1)[1] if "\n" in text else ""
+        return yaml.safe_load(text)
+    except (ValueError, yaml.YAMLError) as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ModelError(f"not valid {'JSON' if fmt in ('imucal', 'json') else 'YAML'} ({first})") from None
+
+
+def _matrix(d: Any, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
+    """``d[key]`` as a finite float64 array of ``shape`` (one-line :class:`ModelError` otherwise)."""
+    if not isinstance(d, Mapping) or key not in d or d[key] is None:
+        raise ModelError(f"{where}: no {key}")
+    try:
+        a = np.asarray(d[key], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ModelError(f"{where}: {key} is not a {'x'.join(map(str, shape))} array of numbers") from None
+    if a.shape != shape:
+        raise ModelError(f"{where}: {key} has shape {a.shape}, expected {shape}")
+    if not np.all(np.isfinite(a)):
+        raise ModelError(f"{where}: {key} has a non-finite value")
+    return a
+
+
+def _inv(M: np.ndarray, what: str, where: str) -> np.ndarray:
+    """``M^{-1}``, or a one-line :class:`ModelError` when ``M`` is singular."""
+    cond = np.linalg.cond(M)
+    if not np.isfinite(cond) or cond > MAX_CONDITION:
+        raise ModelError(f"{where}: {what} is singular (condition number {cond:.3g})")
+    return np.linalg.inv(M)
+
+
+def _g_sensitivity(G: np.ndarray, name: str, where: str, drop: bool, notes: list[str]) -> None:
+    """Refuse a non-zero gyro g-sensitivity matrix, or drop it (with a note) when ``drop``."""
+    if not np.any(G):
+        return
+    size = f"max |{name}| = {float(np.max(np.abs(G))):.3g}"
+    if not drop:
+        raise ModelError(f"{where}: non-zero gyroscope g-sensitivity {name} ({size}); a jaxcal linear model has "
+                         "none, so it cannot be imported as is (drop it with --drop-g-sensitivity)")
+    notes.append(f"dropped the gyroscope g-sensitivity {name} ({size})")
+
+
+def _linear_model(fwd: Mapping[str, tuple[np.ndarray, np.ndarray]], units: Mapping[str, str],
+                  source: Mapping[str, Any]) -> CalibrationModel:
+    """A ``linear`` model from forward ``(S, b)`` per sensor (jaxcal units), checked as ``load_model`` would."""
+    state = {s: {"S": np.asarray(S, np.float64), "b": np.asarray(b, np.float64)} for s, (S, b) in fwd.items()}
+    meta = {"units": dict(units), "imported_from": dict(source)}
+    check_linear_state(state, meta, tuple(state))
+    return CalibrationModel("linear", tuple(state), state, meta)
+
+
+def _input_unit(sensor: str, unit: Any, what: str, notes: list[str]) -> tuple[str, float]:
+    """(jaxcal input unit, the file's input value per that unit) for a file's raw-input unit."""
+    phys = _PER_JAXCAL_UNIT[sensor]
+    if isinstance(unit, str) and unit in phys:
+        return PHYS_UNIT[sensor], phys[unit]
+    if unit != "LSB":
+        notes.append(f"{what} {unit!r} taken as raw numbers (jaxcal unit LSB)")
+    return "LSB", 1.0
+
+
+def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
+    """imucal's ``FerrarisCalibrationInfo`` / ``TurntableCalibrationInfo`` JSON as a ``linear`` model.
+
+    Inverts :func:`to_imucal`'s mapping: imucal's forward matrix ``K R`` (raw per ``acc_unit`` /
+    ``gyr_unit``: m/s^2 or g, deg/s or rad/s) becomes jaxcal's ``S`` (raw per g, raw per rad/s). A raw
+    input unit (``from_acc_unit`` / ``from_gyr_unit``) that is physical (m/s^2, g; deg/s, rad/s) becomes
+    jaxcal's ``g`` / ``rad/s`` (``S`` and ``b`` rescaled); any other (``a.u.``, ``LSB``, none) is raw
+    (``LSB``). A non-zero ``K_ga`` is refused unless ``drop_g_sensitivity``.
+
+    Args:
+        doc: the parsed JSON (:func:`read_document`).
+        drop_g_sensitivity: import a non-zero ``K_ga`` as zero (with a note) instead of refusing.
+
+    Raises:
+        ModelError: not an imucal Ferraris/Turntable CalibrationInfo of format 2.0.0, a missing or
+            malformed matrix, an output unit jaxcal does not know, or a non-zero ``K_ga`` (one line).
+    """
+    where = "imucal CalibrationInfo"
+    if not isinstance(doc, Mapping) or "cal_type" not in doc:
+        raise ModelError(f"{where}: no 'cal_type' key (not a file written by imucal's CalibrationInfo.to_json_file)")
+    if doc["cal_type"] not in ("Ferraris", "Turntable"):
+        raise ModelError(f"{where}: cal_type {doc['cal_type']!r} is not one jaxcal reads (Ferraris, Turntable)")
+    if doc.get("_format_version") != IMUCAL_FORMAT_VERSION:
+        raise ModelError(f"{where}: _format_version {doc.get('_format_version')!r} is not {IMUCAL_FORMAT_VERSION} "
+                         "(convert older files with imucal.legacy first)")
+    notes: list[str] = []
+    fwd, units = {}, {}
+    for s, tag in (("acc", "a"), ("gyr", "g")):
+        out_unit = doc.get(f"{s}_unit")
+        if out_unit not in _PER_JAXCAL_UNIT[s]:
+            raise ModelError(f"{where}: {s}_unit {out_unit!r} is not one jaxcal converts "
+                             f"({', '.join(_PER_JAXCAL_UNIT[s])})")
+        K = _matrix(doc, f"K_{tag}", (3, 3), where)
+        R = _matrix(doc, f"R_{tag}", (3, 3), where)
+        b = _matrix(doc, f"b_{tag}", (3,), where)
+        units[s], per_in = _input_unit(s, doc.get(f"from_{s}_unit"), f"from_{s}_unit", notes)
+        fwd[s] = (K @ R * (_PER_JAXCAL_UNIT[s][out_unit] / per_in), b / per_in)
+    _g_sensitivity(_matrix(doc, "K_ga", (3, 3), where), "K_ga", where, drop_g_sensitivity, notes)
+    source = {"format": "imucal", "cal_type": doc["cal_type"], "notes": notes}
+    return Imported(_linear_model(fwd, units, source), tuple(notes))
+
+
+def from_json_export(doc: Any) -> Imported:
+    """jaxcal's own plain JSON (:func:`to_json`, format :data:`JSON_FORMAT`) as a ``linear`` model.
+
+    Args:
+        doc: the parsed JSON.
+
+    Raises:
+        ModelError: another format, or a sensor entry that is malformed (one line).
+    """
+    where = "jaxcal JSON"
+    if not isinstance(doc, Mapping) or doc.get("format") != JSON_FORMAT:
+        got = doc.get("format") if isinstance(doc, Mapping) else type(doc).__name__
+        raise ModelError(f"{where}: format {got!r} is not {JSON_FORMAT!r} (written by `jaxcal export --format json`)")
+    sensors = doc.get("sensors")
+    if not isinstance(sensors, Mapping) or not sensors or any(s not in _IMU_SENSORS for s in sensors):
+        raise ModelError(f"{where}: 'sensors' must map some of acc, gyr to their calibration")
+    notes: list[str] = []
+    fwd, units = {}, {}
+    for s in _IMU_SENSORS:
+        if s not in sensors:
+            continue
+        p = sensors[s]
+        A = _matrix(p, "A", (3, 3), f"{where} {s}")
+        b = _matrix(p, "b", (3,), f"{where} {s}")
+        if not isinstance(p, Mapping) or p.get("output_unit") != PHYS_UNIT[s]:
+            raise ModelError(f"{where} {s}: output_unit {p.get('output_unit')!r} is not {PHYS_UNIT[s]!r}")
+        unit = p.get("input_unit")
+        if unit not in ("LSB", PHYS_UNIT[s]):
+            notes.append(f"{s} input_unit {unit!r} taken as raw numbers (jaxcal unit LSB)")
+            unit = "LSB"
+        fwd[s] = (_inv(A, "A", f"{where} {s}"), b)
+        units[s] = unit
+    source = {"format": "json", "method": doc.get("method"), "notes": notes}
+    return Imported(_linear_model(fwd, units, source), tuple(notes))
+
+
+def _imu0(doc: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(doc, Mapping) or not isinstance(doc.get("imu0"), Mapping):
+        raise ModelError(f"{where}: no 'imu0' mapping")
+    return doc["imu0"]
+
+
+def _yaml_bias_units(imu: Mapping[str, Any], where: str, notes: list[str]) -> tuple[dict, dict]:
+    """Raw bias (``jaxcal_b_a``/``_g``, zero when absent) and input units of a YAML export."""
+    bias, units = {}, {}
+    for s, key in (("acc", "jaxcal_b_a"), ("gyr", "jaxcal_b_g")):
+        if key in imu:
+            bias[s] = _matrix(imu, key, (3,), where)
+        else:
+            bias[s] = np.zeros(3)
+            notes.append(f"no {key}: {s} bias taken as 0 (the tool estimates it online)")
+        unit = imu.get(f"jaxcal_input_unit_{s}")
+        if unit in ("LSB", PHYS_UNIT[s]):
+            units[s] = unit
+        else:
+            units[s] = "LSB"
+            notes.append(f"{s} input unit {unit!r} taken as raw numbers (jaxcal unit LSB)")
+    return bias, units
+
+
+def from_kalibr(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
+    """Kalibr's ``scale-misalignment`` IMU intrinsics (:func:`to_kalibr`'s YAML) as a ``linear`` model.
+
+    Kalibr's forward model (:data:`KALIBR_CONVENTION`) gives jaxcal's forward matrices
+    ``S_a = G0 M_a C_i_b`` (raw per g) and ``S_g = M_g C_gyro_i C_i_b`` (raw per rad/s). The bias and
+    input units come from the ``jaxcal_*`` keys (absent: bias 0, raw input, with a note). Refused: a
+    model other than ``scale-misalignment``, a ``T_i_b`` translation (a lever arm), a non-zero ``A``
+    (unless ``drop_g_sensitivity``).
+
+    Args:
+        doc: the parsed YAML.
+        drop_g_sensitivity: import a non-zero ``A`` as zero (with a note) instead of refusing.
+
+    Raises:
+        ModelError: what jaxcal's linear model cannot hold, or a malformed file (one line).
+    """
+    where = "Kalibr imu0"
+    imu = _imu0(doc, where)
+    if imu.get("model") != "scale-misalignment":
+        raise ModelError(f"{where}: model {imu.get('model')!r} is not 'scale-misalignment' (the Kalibr IMU model "
+                         "jaxcal reads; 'calibrated' holds no intrinsics, 'scale-misalignment-size-effect' has "
+                         "per-axis lever arms)")
+    T = _matrix(imu, "T_i_b", (4, 4), where)
+    if np.any(T[:3, 3]):
+        raise ModelError(f"{where}: T_i_b has a translation (lever arm {T[:3, 3].tolist()} m), which a jaxcal "
+                         "linear model cannot hold")
+    C_i_b = T[:3, :3]
+    M_a = _matrix(imu.get("accelerometers"), "M", (3, 3), f"{where} accelerometers")
+    M_g = _matrix(imu.get("gyroscopes"), "M", (3, 3), f"{where} gyroscopes")
+    C_gyro_i = _matrix(imu.get("gyroscopes"), "C_gyro_i", (3, 3), f"{where} gyroscopes")
+    notes: list[str] = []
+    _g_sensitivity(_matrix(imu.get("gyroscopes"), "A", (3, 3), f"{where} gyroscopes"), "A", where,
+                   drop_g_sensitivity, notes)
+    bias, units = _yaml_bias_units(imu, where, notes)
+    fwd = {"acc": (G0 * (M_a @ C_i_b), bias["acc"]), "gyr": (M_g @ C_gyro_i @ C_i_b, bias["gyr"])}
+    return Imported(_linear_model(fwd, units, {"format": "kalibr", "notes": notes}), tuple(notes))
+
+
+def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
+    """OpenVINS's IMU intrinsics (:func:`to_openvins`'s ``kalibr_imu_chain.yaml``) as a ``linear`` model.
+
+    As OpenVINS reads them (:data:`OPENVINS_CONVENTION`): ``Da = tril(Ta^{-1})``, ``Dw = tril(Tw^{-1})``
+    and ``a_I = R_IMUtoACC^T Da (a_m - b_a)``, so jaxcal's forward matrices are
+    ``S_a = G0 (R_IMUtoACC^T Da)^{-1}`` and ``S_g = (R_IMUtoGYRO^T Dw)^{-1}``. Bias and input units
+    from the ``jaxcal_*`` keys (absent: bias 0, raw input, with a note). ``T_i_b`` is not read
+    (OpenVINS does not apply it to the IMU). Refused: a model other than ``kalibr`` / ``calibrated``
+    (OpenVINS's ``rpng`` model keeps other triangles), ``Tw`` or ``Ta`` not lower triangular, a
+    non-zero ``Tg`` (unless ``drop_g_sensitivity``).
+
+    Args:
+        doc: the parsed YAML.
+        drop_g_sensitivity: import a non-zero ``Tg`` as zero (with a note) instead of refusing.
+
+    Raises:
+        ModelError: what jaxcal's linear model cannot hold, or a malformed file (one line).
+    """
+    where = "OpenVINS imu0"
+    imu = _imu0(doc, where)
+    if imu.get("model") not in ("kalibr", "calibrated"):
+        raise ModelError(f"{where}: model {imu.get('model')!r} is not 'kalibr' or 'calibrated' (the OpenVINS IMU "
+                         "models whose lower-triangular Tw, Ta jaxcal reads)")
+    notes: list[str] = []
+    mats = {}
+    for key in ("Tw", "R_IMUtoGYRO", "Ta", "R_IMUtoACC", "Tg"):
+        mats[key] = _matrix(imu, key, (3, 3), where)
+    for key in ("Tw", "Ta"):
+        if np.any(np.triu(mats[key], 1)):
+            raise ModelError(f"{where}: {key} is not lower triangular (OpenVINS's kalibr model keeps only the lower "
+                             f"triangle of its inverse, so this file does not mean what it says)")
+    _g_sensitivity(mats["Tg"], "Tg", where, drop_g_sensitivity, notes)
+    bias, units = _yaml_bias_units(imu, where, notes)
+    Da, Dw = np.tril(_inv(mats["Ta"], "Ta", where)), np.tril(_inv(mats["Tw"], "Tw", where))
+    S_a = G0 * _inv(mats["R_IMUtoACC"].T @ Da, "R_IMUtoACC^T Da", where)
+    S_g = _inv(mats["R_IMUtoGYRO"].T @ Dw, "R_IMUtoGYRO^T Dw", where)
+    fwd = {"acc": (S_a, bias["acc"]), "gyr": (S_g, bias["gyr"])}
+    return Imported(_linear_model(fwd, units, {"format": "openvins", "notes": notes}), tuple(notes))
+
+
+def import_model(fmt: str, doc: Any, drop_g_sensitivity: bool = False) -> Imported:
+    """A parsed calibration file of format ``fmt`` (:data:`IMPORT_FORMATS`) as a jaxcal ``linear`` model.
+
+    Args:
+        fmt: ``imucal``, ``json``, ``kalibr`` or ``openvins``.
+        doc: the parsed document (:func:`read_document`).
+        drop_g_sensitivity: import a gyro g-sensitivity (imucal ``K_ga``, Kalibr ``A``, OpenVINS ``Tg``)
+            as zero instead of refusing (not used by ``json``, which has none).
+
+    Raises:
+        ModelError: unknown format, or what the format's reader refuses (one line).
+    """
+    if fmt == "imucal":
+        return from_imucal(doc, drop_g_sensitivity)
+    if fmt == "json":
+        return from_json_export(doc)
+    if fmt == "kalibr":
+        return from_kalibr(doc, drop_g_sensitivity)
+    if fmt == "openvins":
+        return from_openvins(doc, drop_g_sensitivity)
+    raise ModelError(f"unknown import format {fmt!r} ({', '.join(IMPORT_FORMATS)})")

@@ -1,9 +1,13 @@
-"""``jaxcal export``: linear models as plain JSON and as a C99 header (:mod:`jaxcal.export`).
+"""``jaxcal export`` and ``jaxcal import-model`` (:mod:`jaxcal.export`).
 
 Each export is checked against an independent reader: the JSON is parsed back and applied with
 numpy's ``A @ (y - b)``; the header is compiled with ``gcc -std=c99 -pedantic -Wall -Wextra -Werror``
-into a small program that calibrates a recording's raw samples. Both must give the calibrated
-output of ``jaxcal apply`` (``methods.apply``) to float64 rounding.
+into a small program that calibrates a recording's raw samples; the Kalibr and OpenVINS YAML are
+applied with each tool's own equation, written here from its source; the imucal JSON is loaded and
+applied by imucal itself. All must give the calibrated output of ``jaxcal apply``
+(``methods.apply``) to float64 rounding. Imports: export -> ``import-model`` -> apply gives the
+original model's output, and a file made by imucal itself imports and applies as imucal's
+``calibrate``; what a linear model cannot hold is refused with one line.
 """
 
 from __future__ import annotations
@@ -23,11 +27,15 @@ from jaxcal.cli import main
 from jaxcal.constants import G0
 from jaxcal.export import (
     EQUATION,
+    IMPORT_FORMATS,
+    import_model,
     is_linear,
     linear_cals,
     linear_methods,
     lower_times_rotation,
+    scale_misalignment,
     to_c_header,
+    to_imucal,
     to_json,
     to_kalibr,
     to_openvins,
@@ -382,3 +390,318 @@ def test_yaml_exports_need_both_sensors_and_keep_their_keys(tmp_path, capsys):
     assert "a.npz" in err and "no gyr calibration" in err and not (tmp_path / "o.yaml").exists()
     code, _, err = _run(capsys, "export", tmp_path / "a.npz", "--format", "kalibr", "--out", tmp_path / "o.json")
     assert code == 2 and "the kalibr export is written as .yaml" in err, err
+
+
+# ----------------------------------------------------------------------------- noise keys in the YAML exports
+
+# The imu0 keys of OpenVINS's own kalibr_imu_chain.yaml, copied from rpng/open_vins
+# config/rpng_sim/kalibr_imu_chain.yaml at commit 6b4abfd2c9be2cdfbaf329efcb8d8cb219c6955f (the same keys as
+# config/euroc_mav/kalibr_imu_chain.yaml, which adds no others), in that file's order.
+OPENVINS_IMU0_KEYS = [
+    "T_i_b", "accelerometer_noise_density", "accelerometer_random_walk", "gyroscope_noise_density",
+    "gyroscope_random_walk", "rostopic", "time_offset", "update_rate", "model", "Tw", "R_IMUtoGYRO", "Ta",
+    "R_IMUtoACC", "Tg",
+]
+
+# A Kalibr imu.yaml as Kalibr's wiki ("IMU Noise Model") and `jaxcal noise` write it: flat keys, SI units.
+KALIBR_IMU_YAML = """\
+#Accelerometers
+accelerometer_noise_density: 1.86e-03   #Noise density (continuous-time)
+accelerometer_random_walk:   4.33e-04   #Bias random walk
+#Gyroscopes
+gyroscope_noise_density:     1.87e-04   #Noise density (continuous-time)
+gyroscope_random_walk:       2.66e-05   #Bias random walk
+rostopic:                    /imu0      #the IMU ROS topic
+update_rate:                 200.0      #Hz (for discretization of the values above)
+"""
+NOISE_VALUES = {"accelerometer_noise_density": 1.86e-03, "accelerometer_random_walk": 4.33e-04,
+                "gyroscope_noise_density": 1.87e-04, "gyroscope_random_walk": 2.66e-05,
+                "rostopic": "/imu0", "update_rate": 200.0}
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+def test_noise_keys_go_into_the_yaml_exports(fmt, tmp_path, capsys):
+    save_model(_model("linear"), tmp_path / "m.npz")
+    (tmp_path / "imu.yaml").write_text(KALIBR_IMU_YAML)
+    code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--noise", tmp_path / "imu.yaml",
+                          "--out", tmp_path / "x.yaml")
+    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1 and "--noise" not in err, err
+    text = (tmp_path / "x.yaml").read_text()
+    assert "Missing IMU noise keys" not in text
+    imu = _read_yaml(tmp_path / "x.yaml")["imu0"]
+    assert {k: imu[k] for k in NOISE_VALUES} == NOISE_VALUES
+    if fmt == "openvins":
+        assert [k for k in imu if not k.startswith("jaxcal_")] == OPENVINS_IMU0_KEYS  # every key, OpenVINS's order
+        assert np.array_equal(np.asarray(imu["T_i_b"]), np.eye(4)) and imu["time_offset"] == 0.0
+    # without --noise: the file and the stderr line name the missing keys
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--out", tmp_path / "y.yaml")
+    assert code == 0 and len(err.strip().splitlines()) == 1 and "pass --noise" in err, err
+    assert "# Missing IMU noise keys (Kalibr imu.yaml, SI units): accelerometer_noise_density" in (tmp_path / "y.yaml").read_text()
+    imu = _read_yaml(tmp_path / "y.yaml")["imu0"]
+    assert not set(NOISE_VALUES) & set(imu)
+    if fmt == "openvins":
+        assert set(OPENVINS_IMU0_KEYS) - set(imu) == set(NOISE_VALUES)
+
+
+def test_noise_file_forms_and_bad_noise_files(tmp_path, capsys):
+    save_model(_model("linear"), tmp_path / "m.npz")
+    # OpenVINS's form: %YAML:1.0 and the keys under imu0 (rostopic optional)
+    nested = "%YAML:1.0\nimu0:\n" + "".join(f"  {k}: {v}\n" for k, v in NOISE_VALUES.items() if k != "rostopic")
+    (tmp_path / "chain.yaml").write_text(nested)
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", "openvins", "--noise", tmp_path / "chain.yaml",
+                        "--out", tmp_path / "o.yaml")
+    assert code == 0 and "chain.yaml has no rostopic" in err, err
+    imu = _read_yaml(tmp_path / "o.yaml")["imu0"]
+    assert imu["gyroscope_random_walk"] == 2.66e-05 and "rostopic" not in imu
+    for text, needle in [
+        ("accelerometer_noise_density: 1.0e-3\n", "no accelerometer_random_walk"),
+        (KALIBR_IMU_YAML.replace("200.0", "0"), "update_rate must be a rate > 0"),
+        (KALIBR_IMU_YAML.replace("2.66e-05", "fast"), "gyroscope_random_walk must be a finite number >= 0"),
+        ("[1, 2", "not valid YAML"),
+    ]:
+        (tmp_path / "bad.yaml").write_text(text)
+        code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", "kalibr", "--noise",
+                              tmp_path / "bad.yaml", "--out", tmp_path / "k.yaml")
+        assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+        assert needle in err and "bad.yaml" in err and not (tmp_path / "k.yaml").exists(), err
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", "json", "--noise", tmp_path / "chain.yaml",
+                        "--out", tmp_path / "x.json")
+    assert code == 2 and "--noise goes with --format kalibr or openvins" in err, err
+
+
+# ----------------------------------------------------------------------------- imucal CalibrationInfo
+
+# imucal's own calibrate (imucal 2.6.0, FerrarisCalibrationInfo.calibrate: inv(R) @ inv(K) @ (raw - b), then
+# the gyro with K_ga) against jaxcal apply converted to m/s^2 (x G0) and deg/s. Max |difference| over the
+# largest calibrated value, measured (acc, gyr): linear 3.6e-16, 5.3e-16; multipos 1.8e-16, 3.4e-16.
+IMUCAL_REL_TOL = 1e-14
+
+
+def _imucal_calibrate(path, acc: np.ndarray, gyr: np.ndarray) -> tuple[np.ndarray, np.ndarray, object]:
+    """Load ``path`` with imucal itself and calibrate with its own equation."""
+    management = pytest.importorskip("imucal.management")
+    info = management.load_calibration_info(path)
+    a, g = info.calibrate(acc, gyr, acc_unit=info.from_acc_unit, gyr_unit=info.from_gyr_unit)
+    return np.asarray(a), np.asarray(g), info
+
+
+@pytest.mark.parametrize("method", sorted(RECORDINGS))
+def test_imucal_export_is_read_by_imucal(method, tmp_path, capsys):
+    pytest.importorskip("imucal")
+    model, rec = _model(method), RECORDINGS[method]()
+    save_model(model, tmp_path / "m.npz")
+    code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", "imucal", "--out", tmp_path / "cal.json")
+    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1, err
+    y_a, y_g = (np.asarray(getattr(rec, s), np.float64) for s in ("acc", "gyr"))
+    a, g, info = _imucal_calibrate(tmp_path / "cal.json", y_a, y_g)
+    assert type(info).__name__ == "FerrarisCalibrationInfo"
+    assert (info.acc_unit, info.gyr_unit) == ("m/s^2", "deg/s")
+    assert (info.from_acc_unit, info.from_gyr_unit) == (model.meta["units"]["acc"], model.meta["units"]["gyr"])
+    assert "inv(R_a) @ inv(K_a)" in info.comment and np.all(info.K_ga == 0.0)
+    for K, R in ((info.K_a, info.R_a), (info.K_g, info.R_g)):
+        assert np.all(K == np.diag(np.diag(K))) and np.all(np.diag(K) > 0)
+        # Measured: row norms of R within 2.2e-16 of 1 (imucal's Ferraris normalisation, one rounding).
+        np.testing.assert_allclose(np.linalg.norm(R, axis=1), 1.0, atol=1e-14)
+    # the file has exactly the keys imucal itself writes (its from_dict takes no others)
+    assert set(json.loads((tmp_path / "cal.json").read_text())) == set(json.loads(info.to_json()))
+    ref = methods.apply(model, rec)
+    assert _rel_err(a, G0 * ref["acc_cal"]) < IMUCAL_REL_TOL
+    assert _rel_err(g, np.rad2deg(ref["gyr_cal"])) < IMUCAL_REL_TOL
+
+
+def test_imucal_export_needs_both_sensors():
+    m = _model("linear")
+    acc_only = CalibrationModel("linear", ("acc",), {"acc": m.state["acc"]}, {"units": {"acc": "LSB"}})
+    with pytest.raises(ModelError, match="no gyr calibration"):
+        to_imucal(acc_only)
+    with pytest.raises(ModelError, match="is not linear"):
+        to_imucal(_fake_model("cubic"))
+
+
+def test_scale_misalignment():
+    worst = 0.0
+    for S in _random_matrices():
+        K, R = scale_misalignment(S)
+        assert np.all(K == np.diag(np.diag(K))) and np.all(np.diag(K) > 0)
+        np.testing.assert_allclose(np.linalg.norm(R, axis=1), 1.0, atol=1e-14)  # measured 2.2e-16
+        worst = max(worst, float(np.max(np.abs(K @ R - S)) / np.max(np.abs(S))))
+    assert worst < 1e-15  # measured 1.2e-16 (one rounding per entry of R)
+    with pytest.raises(ModelError, match="zero or non-finite row"):
+        scale_misalignment(np.diag([1.0, 0.0, 1.0]))
+
+
+# ----------------------------------------------------------------------------- import-model
+
+# export -> import-model -> apply against jaxcal apply of the original model. Max |difference| over the
+# largest calibrated value, measured (acc, gyr), linear / multipos: imucal 0, 3.2e-16 / 1.1e-16, 1.5e-16;
+# json 0, 3.2e-16 / 1.1e-16, 1.5e-16; kalibr 2.2e-16, 6.4e-16 / 1.1e-16, 3.0e-16; openvins 4.5e-16, 4.8e-16 /
+# 1.1e-16, 4.5e-16 (a few ulp: S = inv(A) or the tools' factors multiplied back, then inverted by apply).
+IMPORT_REL_TOL = 1e-14
+_IMPORT_SUFFIX = {"imucal": ".json", "json": ".json", "kalibr": ".yaml", "openvins": ".yaml"}
+
+
+def test_import_formats_of_the_cli_are_the_library_ones():
+    from jaxcal.cli.export import _IMPORT_FORMATS
+
+    assert _IMPORT_FORMATS == IMPORT_FORMATS
+
+
+@pytest.mark.parametrize("fmt", list(IMPORT_FORMATS))
+@pytest.mark.parametrize("method", sorted(RECORDINGS))
+def test_export_import_model_apply_round_trip(fmt, method, tmp_path, capsys):
+    model, rec = _model(method), RECORDINGS[method]()
+    save_model(model, tmp_path / "m.npz")
+    f = tmp_path / f"cal{_IMPORT_SUFFIX[fmt]}"
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--out", f)
+    assert code == 0, err
+    code, out, err = _run(capsys, "import-model", fmt, f, "--out", tmp_path / "back.npz")
+    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert "linear model from" in err and "taken as" not in err, err  # nothing assumed: the file says it all
+    back = load_model(tmp_path / "back.npz")
+    assert back.method == "linear" and back.sensors == ("acc", "gyr")
+    assert back.meta["units"] == {s: model.meta["units"][s] for s in back.sensors}
+    assert back.meta["imported_from"]["format"] == fmt and back.meta["imported_from"]["file"] == f.name
+    ref, got = methods.apply(model, rec), methods.apply(back, rec)
+    for k in ("acc_cal", "gyr_cal"):
+        assert _rel_err(got[k], ref[k]) < IMPORT_REL_TOL, (k, _rel_err(got[k], ref[k]))
+
+
+def _unit_rows(M: np.ndarray) -> np.ndarray:
+    return M / np.linalg.norm(M, axis=1, keepdims=True)
+
+
+def _imucal_info(units: str, K_ga: np.ndarray | None = None):
+    """A FerrarisCalibrationInfo built by imucal itself with known parameters (raw counts or physical input)."""
+    imucal = pytest.importorskip("imucal")
+    rng = np.random.default_rng(5)
+    if units == "raw":  # MPU-6050-like counts: LSB per m/s^2, LSB per deg/s
+        k_a, k_g, b_a, b_g, from_units = 16384.0 / G0, 131.0, rng.normal(0, 200, 3), rng.normal(0, 30, 3), ("a.u.",) * 2
+    else:  # an IMU already in physical units, a few % off
+        k_a, k_g, b_a, b_g, from_units = 1.0, 1.0, rng.normal(0, 0.1, 3), rng.normal(0, 0.5, 3), ("m/s^2", "deg/s")
+    return imucal.FerrarisCalibrationInfo(
+        K_a=np.diag(k_a * (1 + rng.normal(0, 0.02, 3))), R_a=_unit_rows(np.eye(3) + rng.normal(0, 0.02, (3, 3))),
+        b_a=b_a, K_g=np.diag(k_g * (1 + rng.normal(0, 0.02, 3))),
+        R_g=_unit_rows(np.eye(3) + rng.normal(0, 0.02, (3, 3))),
+        K_ga=np.zeros((3, 3)) if K_ga is None else K_ga, b_g=b_g,
+        from_acc_unit=from_units[0], from_gyr_unit=from_units[1], comment="made by imucal in a jaxcal test",
+    )
+
+
+# imucal's calibrate on the imucal-made file against jaxcal apply of the imported model, in m/s^2 and deg/s.
+# Measured max |difference| over the largest calibrated value (acc, gyr): raw 1.9e-16, 3.7e-16; physical
+# 3.9e-16, 2.9e-16.
+@pytest.mark.parametrize("units", ["raw", "physical"])
+def test_import_model_of_a_file_written_by_imucal(units, tmp_path, capsys):
+    info = _imucal_info(units)
+    info.to_json_file(tmp_path / "imucal.json")
+    code, out, err = _run(capsys, "import-model", "imucal", tmp_path / "imucal.json", "--out", tmp_path / "m.npz")
+    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1, err
+    model = load_model(tmp_path / "m.npz")
+    rng = np.random.default_rng(6)
+    n = 500
+    if units == "raw":
+        assert "from_acc_unit 'a.u.' taken as raw numbers" in err and model.meta["units"] == {"acc": "LSB", "gyr": "LSB"}
+        acc, gyr = rng.normal(0, 16384.0, (n, 3)), rng.normal(0, 3000.0, (n, 3))
+        acc_in, gyr_in = acc, gyr
+    else:  # jaxcal records physical input in g and rad/s; imucal's file says m/s^2 and deg/s
+        assert "taken as" not in err and model.meta["units"] == {"acc": "g", "gyr": "rad/s"}
+        acc, gyr = rng.normal(0, 1.0, (n, 3)), rng.normal(0, 2.0, (n, 3))
+        acc_in, gyr_in = acc * G0, np.rad2deg(gyr)
+    rec = Recording(t=np.arange(n) / 100.0, acc=acc, gyr=gyr, acc_unit=model.meta["units"]["acc"],
+                    gyr_unit=model.meta["units"]["gyr"])
+    a, g, _ = _imucal_calibrate(tmp_path / "imucal.json", acc_in, gyr_in)
+    got = methods.apply(model, rec)
+    assert _rel_err(G0 * got["acc_cal"], a) < IMPORT_REL_TOL
+    assert _rel_err(np.rad2deg(got["gyr_cal"]), g) < IMPORT_REL_TOL
+
+
+def test_import_model_refuses_g_sensitivity_unless_dropped(tmp_path, capsys):
+    K_ga = np.full((3, 3), 0.01)
+    _imucal_info("raw", K_ga).to_json_file(tmp_path / "kga.json")
+    code, out, err = _run(capsys, "import-model", "imucal", tmp_path / "kga.json", "--out", tmp_path / "m.npz")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert "kga.json" in err and "non-zero gyroscope g-sensitivity K_ga" in err and "--drop-g-sensitivity" in err
+    assert not (tmp_path / "m.npz").exists()
+    code, _, err = _run(capsys, "import-model", "imucal", tmp_path / "kga.json", "--out", tmp_path / "m.npz",
+                        "--drop-g-sensitivity")
+    assert code == 0 and "dropped the gyroscope g-sensitivity K_ga (max |K_ga| = 0.01)" in err, err
+    assert load_model(tmp_path / "m.npz").meta["imported_from"]["notes"][-1].startswith("dropped")
+    # Kalibr's A and OpenVINS's Tg: the same refusal
+    m = _model("linear")
+    k = json.loads(json.dumps(to_kalibr(m)))
+    k["imu0"]["gyroscopes"]["A"][0][1] = 1e-4
+    o = json.loads(json.dumps(to_openvins(m)))
+    o["imu0"]["Tg"][2][0] = 1e-4
+    for fmt, doc, name in (("kalibr", k, "A"), ("openvins", o, "Tg")):
+        with pytest.raises(ModelError, match=f"non-zero gyroscope g-sensitivity {name} "):
+            import_model(fmt, doc)
+        assert import_model(fmt, doc, drop_g_sensitivity=True).notes[0].startswith(f"dropped the gyroscope g-sensitivity {name}")
+
+
+def _edited(doc: dict, path: tuple, value) -> dict:
+    doc = json.loads(json.dumps(doc))
+    d = doc
+    for key in path[:-1]:
+        d = d[key]
+    if value is None:
+        del d[path[-1]]
+    else:
+        d[path[-1]] = value
+    return doc
+
+
+def test_import_model_refuses_what_a_linear_model_cannot_hold():
+    m = _model("linear")
+    k, o, j, i = to_kalibr(m), to_openvins(m), to_json(m), to_imucal(m)
+    T = np.eye(4)
+    T[0, 3] = 0.05
+    upper = np.tril(np.asarray(o["imu0"]["Tw"])) + np.triu(np.ones((3, 3)), 1) * 1e-3
+    cases = [
+        ("kalibr", _edited(k, ("imu0", "model"), "calibrated"), "is not 'scale-misalignment'"),
+        ("kalibr", _edited(k, ("imu0", "T_i_b"), T.tolist()), "T_i_b has a translation"),
+        ("kalibr", _edited(k, ("imu0", "accelerometers", "M"), [[1.0, 0.0], [0.0, 1.0]]), "has shape (2, 2)"),
+        ("kalibr", {"imu1": {}}, "no 'imu0' mapping"),
+        ("openvins", _edited(o, ("imu0", "model"), "rpng"), "is not 'kalibr' or 'calibrated'"),
+        ("openvins", _edited(o, ("imu0", "Tw"), upper.tolist()), "Tw is not lower triangular"),
+        ("openvins", _edited(o, ("imu0", "Ta"), None), "no Ta"),
+        ("json", _edited(j, ("format",), "other/1"), "is not 'jaxcal-linear-calibration/1'"),
+        ("json", _edited(j, ("sensors", "acc", "output_unit"), "m/s^2"), "output_unit 'm/s^2' is not 'g'"),
+        ("json", _edited(j, ("sensors", "gyr", "A"), [[0.0] * 3] * 3), "singular"),
+        ("imucal", _edited(i, ("cal_type",), "Custom"), "cal_type 'Custom' is not one jaxcal reads"),
+        ("imucal", _edited(i, ("_format_version",), "1.0.0"), "_format_version '1.0.0' is not 2.0.0"),
+        ("imucal", _edited(i, ("gyr_unit",), "rpm"), "gyr_unit 'rpm' is not one jaxcal converts"),
+        ("imucal", _edited(i, ("b_a",), [1.0, "x", 2.0]), "b_a is not a 3 array of numbers"),
+        ("imucal", _edited(i, ("R_g",), None), "no R_g"),
+    ]
+    for fmt, doc, needle in cases:
+        with pytest.raises(ModelError) as e:
+            import_model(fmt, doc)
+        assert needle in str(e.value) and "\n" not in str(e.value), (fmt, needle, str(e.value))
+
+
+def test_import_model_notes_what_a_foreign_yaml_lacks():
+    """A Kalibr/OpenVINS file without jaxcal's keys: bias 0 and raw input, said in the notes."""
+    m = _model("linear")
+    doc = json.loads(json.dumps(to_openvins(m)))
+    for key in ("jaxcal_b_a", "jaxcal_b_g", "jaxcal_input_unit_acc", "jaxcal_input_unit_gyr"):
+        del doc["imu0"][key]
+    imp = import_model("openvins", doc)
+    assert imp.model.meta["units"] == {"acc": "LSB", "gyr": "LSB"}
+    assert any("no jaxcal_b_a" in n for n in imp.notes) and any("input unit None taken as raw" in n for n in imp.notes)
+    assert np.all(imp.model.state["acc"]["b"] == 0.0)
+    # the matrices are still the exported ones: forward S_a equals jaxcal's to float precision
+    S = np.asarray(m.state["acc"]["S"], np.float64)
+    assert _rel_err(imp.model.state["acc"]["S"], S) < 1e-14  # measured 4.4e-16
+
+
+def test_cli_import_model_bad_input(tmp_path, capsys):
+    (tmp_path / "x.json").write_text("{not json")
+    code, out, err = _run(capsys, "import-model", "json", tmp_path / "x.json", "--out", tmp_path / "m.npz")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and "not valid JSON" in err, err
+    code, _, err = _run(capsys, "import-model", "yaml", tmp_path / "x.json", "--out", tmp_path / "m.npz")
+    assert code == 2 and "invalid choice: 'yaml'" in err, err
+    code, _, err = _run(capsys, "import-model", "json", tmp_path / "x.json", "--out", tmp_path / "m.h5")
+    assert code == 2 and "model files are .npz" in err, err
+    code, _, err = _run(capsys, "import-model", "json", tmp_path / "nope.json", "--out", tmp_path / "m.npz")
+    assert code == 2 and "cannot read" in err, err
+    assert not (tmp_path / "m.npz").exists()

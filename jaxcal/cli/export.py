@@ -1,14 +1,18 @@
-"""``jaxcal export``: a linear model as JSON, a C header, or Kalibr/OpenVINS intrinsics."""
+"""``jaxcal export``: a linear model as JSON, a C header, Kalibr/OpenVINS intrinsics or imucal's
+CalibrationInfo; ``jaxcal import-model``: such a file (imucal, json, kalibr, openvins) back as a
+``linear`` model."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+from pathlib import Path
 
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, register_command
 from jaxcal.methods import ModelError
-from jaxcal.model_file import load_model
+from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import atomic_output
 
 __all__: list[str] = []
@@ -16,7 +20,7 @@ __all__: list[str] = []
 
 # ----------------------------------------------------------------------------- export
 
-_EXPORT_SUFFIX = {"json": ".json", "c": ".h", "kalibr": ".yaml", "openvins": ".yaml"}
+_EXPORT_SUFFIX = {"json": ".json", "c": ".h", "kalibr": ".yaml", "openvins": ".yaml", "imucal": ".json"}
 
 
 def _c_identifier(text: str) -> str:
@@ -30,11 +34,34 @@ def _add_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", required=True, choices=tuple(_EXPORT_SUFFIX),
                    help="json: plain JSON with the apply equation written out; c: dependency-free C99 header; "
                    "kalibr: Kalibr scale-misalignment IMU intrinsics (YAML); openvins: OpenVINS kalibr_imu_chain.yaml "
-                   "intrinsics (kalibr and openvins need acc and gyr)")
+                   "intrinsics; imucal: imucal's FerrarisCalibrationInfo JSON (kalibr, openvins and imucal need acc and gyr)")
     p.add_argument("--out", required=True, metavar="FILE",
-                   help="file to write (.json for json, .h for c, .yaml for kalibr and openvins)")
+                   help="file to write (.json for json and imucal, .h for c, .yaml for kalibr and openvins)")
     p.add_argument("--name", type=_c_identifier, default="jaxcal_cal",
                    help="c: prefix of the header's identifiers (default jaxcal_cal)")
+    p.add_argument("--noise", metavar="IMU_YAML", default=None,
+                   help="kalibr, openvins: a Kalibr imu.yaml (e.g. from `jaxcal noise`) whose noise densities, random "
+                   "walks, update_rate and rostopic go into the file (without it, a comment names the missing keys)")
+
+
+def _read_noise(path: str) -> dict:
+    """The checked noise keys of a Kalibr imu.yaml file (UsageError naming the file otherwise)."""
+    import yaml
+
+    from jaxcal import export
+
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise UsageError(f"--noise {path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+    if text.startswith("%YAML:"):
+        text = text.split("\n", 1)[1] if "\n" in text else ""
+    try:
+        return export.noise_fields(yaml.safe_load(text))
+    except yaml.YAMLError as e:
+        raise UsageError(f"--noise {path}: not valid YAML ({str(e).strip().splitlines()[0]})") from None
+    except ValueError as e:
+        raise UsageError(f"--noise {path}: {e}") from None
 
 
 def _run_export(args: argparse.Namespace) -> int:
@@ -43,15 +70,26 @@ def _run_export(args: argparse.Namespace) -> int:
     suffix = _EXPORT_SUFFIX[args.format]
     if not args.out.lower().endswith(suffix):
         raise UsageError(f"--out {args.out}: the {args.format} export is written as {suffix}")
-    _check_out_file(args.out, [args.model])
+    if args.noise is not None and args.format not in ("kalibr", "openvins"):
+        raise UsageError(f"--noise goes with --format kalibr or openvins, not {args.format}")
+    _check_out_file(args.out, [args.model] + ([args.noise] if args.noise else []))
+    noise = _read_noise(args.noise) if args.noise is not None else None
     model = load_model(args.model)
+    note = ""
     try:
         if args.format == "json":
             text = json.dumps(export.to_json(model), indent=2) + "\n"
-        elif args.format == "kalibr":
-            text = export.yaml_document("kalibr", export.to_kalibr(model))
-        elif args.format == "openvins":
-            text = export.yaml_document("openvins", export.to_openvins(model))
+        elif args.format == "imucal":
+            text = json.dumps(export.to_imucal(model), indent=4) + "\n"
+        elif args.format in ("kalibr", "openvins"):
+            to_yaml = export.to_kalibr if args.format == "kalibr" else export.to_openvins
+            d = to_yaml(model, noise)
+            text = export.yaml_document(args.format, d)
+            missing = export.missing_noise_keys(d)
+            if missing and noise is None:
+                note = f"; no IMU noise keys ({', '.join(missing)}): pass --noise imu.yaml (e.g. from `{PROG} noise`)"
+            elif missing:
+                note = f"; --noise {args.noise} has no {', '.join(missing)}"
         else:
             text = export.to_c_header(model, args.name)
     except ModelError as e:  # a non-linear model, a missing sensor, a singular matrix: say which file
@@ -62,20 +100,80 @@ def _run_export(args: argparse.Namespace) -> int:
     except OSError as e:
         raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
     print(f"{PROG}: wrote {args.out} ({args.format}: {model.method} model, {export.EQUATION} for "
-          f"{', '.join(model.sensors)})", file=sys.stderr)
+          f"{', '.join(model.sensors)}){note}", file=sys.stderr)
     return 0
 
 
 register_command(
     "export",
     Command(
-        "write a linear model as plain JSON, a C99 header, or Kalibr/OpenVINS IMU intrinsics",
+        "write a linear model as plain JSON, a C99 header, Kalibr/OpenVINS IMU intrinsics or imucal's CalibrationInfo",
         _add_export,
         _run_export,
         "Write the linear calibration x = A @ (y - b) of each sensor of MODEL (methods linear, multipos, "
         "online) as plain JSON (--format json) or a dependency-free C99 header with an apply function "
-        "(--format c), or as Kalibr's scale-misalignment / OpenVINS's kalibr_imu_chain.yaml IMU intrinsics "
+        "(--format c), as Kalibr's scale-misalignment / OpenVINS's kalibr_imu_chain.yaml IMU intrinsics "
         "(--format kalibr|openvins: YAML, acc in m/s^2 and gyr in rad/s from raw samples in the model's input "
-        "unit; both sensors needed). Non-linear models (nn, cubic, online-thesis) are refused.",
+        "unit; both sensors needed; --noise adds a Kalibr imu.yaml's noise keys), or as imucal's "
+        "FerrarisCalibrationInfo JSON (--format imucal: m/s^2 and deg/s, read by imucal's "
+        "CalibrationInfo.from_json_file). Each file states its convention. Non-linear models (nn, cubic, "
+        "online-thesis) are refused.",
+    ),
+)
+
+
+# ----------------------------------------------------------------------------- import-model
+
+
+_IMPORT_FORMATS = ("imucal", "json", "kalibr", "openvins")  # jaxcal.export.IMPORT_FORMATS (imported on use)
+
+
+def _add_import_model(p: argparse.ArgumentParser) -> None:
+    p.add_argument("format", metavar="FORMAT", choices=_IMPORT_FORMATS,
+                   help="imucal: imucal's CalibrationInfo JSON (Ferraris, Turntable; written by imucal or by "
+                   "`jaxcal export --format imucal`); json: `jaxcal export --format json`; kalibr, openvins: the YAML "
+                   "`jaxcal export --format kalibr|openvins` writes")
+    p.add_argument("file", metavar="FILE", help="the calibration file to read")
+    p.add_argument("--out", required=True, metavar="MODEL", help="model file to write (.npz), method linear")
+    p.add_argument("--drop-g-sensitivity", action="store_true",
+                   help="import a gyroscope g-sensitivity (imucal K_ga, Kalibr A, OpenVINS Tg) as zero instead of "
+                   "refusing the file (a jaxcal linear model has none)")
+
+
+def _run_import_model(args: argparse.Namespace) -> int:
+    from jaxcal import export
+
+    if not args.out.lower().endswith(".npz"):
+        raise UsageError(f"--out {args.out}: model files are .npz")
+    _check_out_file(args.out, [args.file])
+    try:
+        text = Path(args.file).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise UsageError(f"{args.file}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+    try:
+        imported = export.import_model(args.format, export.read_document(args.format, text), args.drop_g_sensitivity)
+    except ModelError as e:
+        raise ModelError(f"{args.file}: {e}") from None
+    model = imported.model
+    model.meta["imported_from"]["file"] = os.path.basename(args.file)
+    save_model(model, args.out)
+    notes = "".join(f"; {n}" for n in imported.notes)
+    units = ", ".join(f"{s} {model.meta['units'][s]}" for s in model.sensors)
+    print(f"{PROG}: wrote {args.out} (linear model from {args.format} {args.file}; input units {units}){notes}",
+          file=sys.stderr)
+    return 0
+
+
+register_command(
+    "import-model",
+    Command(
+        "read an imucal, jaxcal JSON, Kalibr or OpenVINS calibration file as a jaxcal linear model",
+        _add_import_model,
+        _run_import_model,
+        "Read FILE, a calibration in FORMAT (imucal: imucal's FerrarisCalibrationInfo JSON, written by imucal or "
+        "jaxcal; json: jaxcal's plain JSON export; kalibr, openvins: the YAML jaxcal exports), and write it as a "
+        "jaxcal model of method linear that `jaxcal apply` uses. What a linear model cannot hold (a gyroscope "
+        "g-sensitivity unless --drop-g-sensitivity, a lever arm, another IMU model) is refused with one line; "
+        "assumptions (a bias or unit the file lacks) are printed.",
     ),
 )
