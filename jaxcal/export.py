@@ -440,12 +440,32 @@ def _merge(imu: dict[str, Any], extra: Mapping[str, Any] | None) -> dict[str, An
     return {**imu, **(extra or {})}
 
 
+class _IndentedDumper(yaml.SafeDumper):
+    """PyYAML's safe dumper with block sequences indented under their key (``key:\n  - [..]``).
+
+    PyYAML writes ``key:\n- [..]`` by default, which YAML allows but OpenCV's ``cv::FileStorage``
+    (OpenVINS's configuration reader) refuses ("Incorrect indentation").
+    """
+
+    def increase_indent(self, flow: bool = False, indentless: bool = False) -> None:  # noqa: D102 - PyYAML API
+        return super().increase_indent(flow, False)
+
+
+def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.ScalarNode:
+    """Quote strings that start like a number (``0.1.0``): OpenCV's reader parses them as numbers and fails."""
+    style = '"' if value[:1].isdigit() or value[:1] in "+-." else None
+    return dumper.represent_scalar("tag:yaml.org,2002:str", value, style=style)
+
+
+_IndentedDumper.add_representer(str, _represent_str)
+
+
 def yaml_document(fmt: str, d: Mapping[str, Any]) -> str:
     """The YAML text of :func:`to_kalibr`'s (``fmt="kalibr"``) or :func:`to_openvins`'s (``"openvins"``) dict.
 
     A ``#`` comment header states the convention; the OpenVINS file starts with ``%YAML:1.0`` as
     OpenVINS's own configuration files do (its OpenCV reader expects it; a YAML reader skips that
-    first line). When ``d["imu0"]`` lacks any of the noise keys (:data:`NOISE_KEYS`), a comment line
+    first line), and sequences are indented under their keys as OpenCV's reader requires. When ``d["imu0"]`` lacks any of the noise keys (:data:`NOISE_KEYS`), a comment line
     names them. Floats are written with their shortest round-trip ``repr``.
 
     Args:
@@ -464,7 +484,7 @@ def yaml_document(fmt: str, d: Mapping[str, Any]) -> str:
     if missing:
         head += ["#", f"# Missing IMU noise keys (Kalibr imu.yaml, SI units): {', '.join(missing)}.",
                  "# Add them before the tool reads this file, e.g. `jaxcal export ... --noise imu.yaml` (from `jaxcal noise`)."]
-    body = yaml.safe_dump(dict(d), sort_keys=False, default_flow_style=None, width=200)
+    body = yaml.dump(dict(d), Dumper=_IndentedDumper, sort_keys=False, default_flow_style=None, width=200)
     first = ["%YAML:1.0"] if fmt == "openvins" else []
     return "\n".join(first + head) + "\n" + body
 

@@ -443,6 +443,45 @@ def test_noise_keys_go_into_the_yaml_exports(fmt, tmp_path, capsys):
         assert set(OPENVINS_IMU0_KEYS) - set(imu) == set(NOISE_VALUES)
 
 
+def _opencv_node(node):
+    """A cv2.FileNode as plain Python: maps -> dict, sequences -> list, numbers -> float, strings -> str."""
+    if node.isMap():
+        return {k: _opencv_node(node.getNode(k)) for k in node.keys()}
+    if node.isSeq():
+        return [_opencv_node(node.at(i)) for i in range(node.size())]
+    return node.string() if node.isString() else node.real()
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+def test_opencv_filestorage_reads_the_yaml_exports(fmt, tmp_path, capsys):
+    """OpenVINS reads its configuration with OpenCV's cv::FileStorage, which is stricter than YAML: sequences
+    indented under their key, and a string like 0.1.0 quoted. The file, read by OpenCV itself, holds exactly the
+    numbers a YAML reader finds."""
+    cv2 = pytest.importorskip("cv2")
+    save_model(_model("multipos"), tmp_path / "m.npz")
+    (tmp_path / "imu.yaml").write_text(KALIBR_IMU_YAML)
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--noise", tmp_path / "imu.yaml",
+                        "--out", tmp_path / "x.yaml")
+    assert code == 0, err
+    fs = cv2.FileStorage(str(tmp_path / "x.yaml"), cv2.FILE_STORAGE_READ)
+    via_opencv = _opencv_node(fs.getNode("imu0"))
+    fs.release()
+    via_yaml = _read_yaml(tmp_path / "x.yaml")["imu0"]
+    _assert_same_tree(via_opencv, via_yaml, "imu0")
+
+
+def _assert_same_tree(got, want, where):
+    """Same keys, same strings, and numbers equal exactly (shortest-repr decimals parse to the same doubles)."""
+    if isinstance(want, dict):
+        assert isinstance(got, dict) and got.keys() == want.keys(), where
+        for k in want:
+            _assert_same_tree(got[k], want[k], f"{where}.{k}")
+    elif isinstance(want, str):
+        assert got == want, where
+    else:
+        assert np.array_equal(np.asarray(got, float), np.asarray(want, float)), where
+
+
 def test_noise_file_forms_and_bad_noise_files(tmp_path, capsys):
     save_model(_model("linear"), tmp_path / "m.npz")
     # OpenVINS's form: %YAML:1.0 and the keys under imu0 (rostopic optional)
