@@ -465,8 +465,8 @@ def yaml_document(fmt: str, d: Mapping[str, Any]) -> str:
 
     A ``#`` comment header states the convention; the OpenVINS file starts with ``%YAML:1.0`` as
     OpenVINS's own configuration files do (its OpenCV reader expects it; a YAML reader skips that
-    first line), and sequences are indented under their keys as OpenCV's reader requires. When ``d["imu0"]`` lacks any of the noise keys (:data:`NOISE_KEYS`), a comment line
-    names them. Floats are written with their shortest round-trip ``repr``.
+    first line), and sequences are indented under their keys as OpenCV's reader requires. When
+    ``d["imu0"]`` lacks any of the noise keys (:data:`NOISE_KEYS`), a comment line names them. Floats are written with their shortest round-trip ``repr``.
 
     Args:
         fmt: ``"kalibr"`` or ``"openvins"``.
