@@ -34,6 +34,7 @@ EXPERIMENTS = (
     ("thesis", "experiments.online_beyond", "online_beyond", "beyond chapter 4: jaxcal online at the quantisation floor, NN, drift"),
     ("real", "experiments.real_data", "real", "public recordings: readers, multipos, peers side by side"),
     ("real", "experiments.discrepancy_benchmark", "discrepancy", "jaxcal diagnose: concealed effects, nulls, TUM-VI, rigs"),
+    ("real", "experiments.apply_effects", "apply_effects", "diagnosed model applied to held-out simulated data: each effect removed"),
 )
 GROUPS = ("thesis", "real", "all")
 

@@ -28,6 +28,7 @@ import toy_method
 from jaxcal import methods
 from jaxcal.cli import main
 from jaxcal.methods import CubicOptions, LinearOptions, ModelError, MultiposOptions, NNOptions, OnlineOptions, OnlineThesisOptions
+from jaxcal.methods.diagnosed import DiagnosedOptions
 from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import Recording
 from jaxcal.simulate import Dataset2Config
@@ -50,6 +51,16 @@ def _multipos() -> Recording:
     return multipos_recording(jax.random.PRNGKey(3), n_poses=12)
 
 
+@functools.cache
+def _rich() -> Recording:
+    """1500 samples of rich motion with reference and a concealed gyro g-sensitivity (what
+    ``diagnosed`` fits from; :mod:`jaxcal.diagnose.simulate`)."""
+    from jaxcal.diagnose.simulate import RichConfig, simulate_recording
+
+    g = np.array([[4e-3, 0, 1e-3], [0, -3e-3, 0], [2e-3, 0, 3e-3]])
+    return simulate_recording(jax.random.PRNGKey(5), RichConfig(n=1500), {("gyr", "g_sensitivity"): {"G": g}})[0]
+
+
 class Case(NamedTuple):
     """A method's contract inputs: a recording it fits, fast options, a recording lacking what it
     needs and a phrase its refusal says."""
@@ -69,6 +80,7 @@ CASES: dict[str, Case] = {
     "online-thesis": Case(lambda: _dataset2(False), OnlineThesisOptions(seed=1),
                           lambda r: r.replace(acc_lsb_per_g=None), "needs the datasheet scale 'acc_lsb_per_g'"),
     "multipos": Case(_multipos, MultiposOptions(), lambda r: r.replace(gyr=None), "needs both 'acc' and 'gyr'"),
+    "diagnosed": Case(_rich, DiagnosedOptions(), needle="needs reference motion"),
 }
 DEFAULT_CASE = Case(lambda: _dataset2(True))
 

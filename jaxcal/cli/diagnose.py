@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from jaxcal.cli.core import PROG, Command, UsageError, _output_dir, _real, register_command
+from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _output_dir, _real, register_command
 from jaxcal.recording import load_recording
 
 __all__: list[str] = []
@@ -17,20 +17,62 @@ def _add_diagnose(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", metavar="RECORDING", help="recording with reference motion (acc_ref/gyr_ref or pos_ref+quat_ref)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory: report.json, report.md, figures")
     p.add_argument("--baseline", choices=("diag", "affine"), default="diag", help="baseline sensor model (default diag)")
+    p.add_argument("--model-out", metavar="MODEL.npz", default=None,
+                   help="also write a model file (method 'diagnosed') with the baseline and the named effects, "
+                        "for `jaxcal apply` on new recordings")
+
+
+def _diagnose_with_model(rec, baseline: str, out_dir):
+    """:func:`jaxcal.diagnose.diagnose_recording` (same calls, same report and figures) that also
+    returns the ``diagnosed`` model of the same diagnosis."""
+    from jaxcal import diagnose as diag
+    from jaxcal.diagnose.report import build_report_banded, figures_banded, write_report
+    from jaxcal.methods import CalibrationModel
+    from jaxcal.methods.diagnosed import diagnosed_model_state
+
+    t0 = time.perf_counter()
+    preps, results = diag.diagnose_banded(rec, baseline)
+    rep = build_report_banded(preps, results, baseline, time.perf_counter() - t0)
+    figs = figures_banded(preps, results)
+    write_report(out_dir, rep, figs)
+    if figs:
+        import matplotlib.pyplot as plt
+
+        for f in figs.values():
+            plt.close(f)
+    fitted = diagnosed_model_state(preps, results, baseline, rec)
+    return rep, CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
 
 
 def _run_diagnose(args: argparse.Namespace) -> int:
     from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
 
+    if args.model_out is not None:
+        if not args.model_out.lower().endswith(".npz"):
+            raise UsageError(f"--model-out {args.model_out}: model files are .npz")
+        try:
+            _check_out_file(args.model_out, [args.recording])
+        except UsageError as e:  # its message names --out
+            raise UsageError(str(e).replace("--out", "--model-out", 1)) from None
     rec = load_recording(args.recording)
     t0 = time.perf_counter()
+    model = None
     with _output_dir(args.out) as d:
         try:
             diag.prepare(rec)  # refuse bad input (no reference motion, too short) before any progress line
             print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-            rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d)
+            if args.model_out is None:
+                rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d)
+            else:
+                rep, model = _diagnose_with_model(rec, args.baseline, d)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
+    if model is not None:
+        from jaxcal.model_file import save_model
+
+        save_model(model, args.model_out)
+        carried = "; ".join(f"{s}: {', '.join(v) or 'baseline only'}" for s, v in model.meta["effects"].items())
+        print(f"{PROG}: wrote {args.model_out} (method diagnosed; {carried})", file=sys.stderr)
     names = [e.get("name", "?") + "(" + e.get("sensor", "?") + ")" for e in rep.get("effects", [])]
     print(
         f"{PROG}: wrote {Path(args.out) / 'report.json'} in {time.perf_counter() - t0:.1f} s; "
@@ -74,7 +116,9 @@ register_command(
         _add_diagnose,
         _run_diagnose,
         "Fit the baseline sensor model to RECORDING against its reference motion, test the effects of "
-        "the discrepancy vocabulary (CONVENTIONS.md) and write DIR/report.json, report.md and figures.",
+        "the discrepancy vocabulary (CONVENTIONS.md) and write DIR/report.json, report.md and figures; with "
+        "--model-out, also a model file (method 'diagnosed': the baseline and the named effects) that "
+        "`jaxcal apply` inverts on new recordings.",
     ),
 )
 

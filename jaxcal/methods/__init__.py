@@ -37,7 +37,7 @@ from flax import serialization
 from flax.errors import FlaxError
 
 from jaxcal.constants import SENSORS
-from jaxcal.methods import cubic, linear, multipos, nn, online, online_thesis
+from jaxcal.methods import cubic, diagnosed, linear, multipos, nn, online, online_thesis
 from jaxcal.methods.base import Fitted, Log, Method, ModelError, units
 from jaxcal.methods.cubic import CubicOptions
 from jaxcal.methods.linear import LinearOptions
@@ -166,8 +166,9 @@ def apply(model: CalibrationModel, rec: Recording) -> dict[str, np.ndarray]:
 
     Raises:
         ModelError: the recording has none of the model's sensors, a sensor's unit differs from
-            the one the model was fitted on, the method is unknown, or the model is malformed
-            (its output is not finite ``(N, 3)`` arrays).
+            the one the model was fitted on, the method is unknown, the model is malformed
+            (its output is not finite ``(N, 3)`` arrays), or the method's ``apply`` refuses the
+            recording (its own one-line :class:`ModelError`, e.g. a channel the model needs).
     """
     present = [s for s in model.sensors if getattr(rec, s) is not None]
     if not present:
@@ -185,6 +186,8 @@ def apply(model: CalibrationModel, rec: Recording) -> dict[str, np.ndarray]:
     other = {k: v for k, v in model.state.items() if k not in SENSORS}
     try:
         out = m.apply({**other, **state}, model.meta, rec)
+    except ModelError:  # the method's own one-line refusal (e.g. a channel the model needs is missing)
+        raise
     except (KeyError, TypeError, IndexError, ValueError, AttributeError, FlaxError) as e:
         # a state/meta entry missing or of the wrong kind or shape
         msg = " ".join(str(e).split())[:200]
@@ -214,3 +217,4 @@ register(online_thesis.METHOD)
 register(online.METHOD)
 register(multipos.METHOD)
 register(cubic.METHOD)
+register(diagnosed.METHOD)
