@@ -35,6 +35,7 @@ EXPERIMENTS = (
     ("real", "experiments.real_data", "real", "public recordings: readers, multipos, peers side by side"),
     ("real", "experiments.discrepancy_benchmark", "discrepancy", "jaxcal diagnose: concealed effects, nulls, TUM-VI, rigs"),
     ("real", "experiments.apply_effects", "apply_effects", "diagnosed model applied to held-out simulated data: each effect removed"),
+    ("real", "experiments.noise", "noise", "Allan-variance noise parameters: interval coverage, allantools, real static stretches, inflation"),
 )
 GROUPS = ("thesis", "real", "all")
 

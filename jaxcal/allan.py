@@ -98,7 +98,9 @@ def _cluster_sizes(n: int, fs: float, taus, per_decade: int = 10) -> np.ndarray:
     return m[(m >= 1) & (m <= max_m)]
 
 
-def overlapping_adev(x: Float[Array, "N ..."], fs: float, taus: Float[Array, " T"] | None = None) -> AllanResult:
+def overlapping_adev(
+    x: Float[Array, "N ..."], fs: float, taus: Float[Array, " T"] | None = None, per_decade: int = 10
+) -> AllanResult:
     """Overlapping Allan deviation of a rate signal, per axis, from its cumulative sum (phase).
 
     With phase ``p_0 = 0``, ``p_k = sum_{i<k} (x_i - mean x) / fs`` (``N + 1`` points) and
@@ -109,7 +111,8 @@ def overlapping_adev(x: Float[Array, "N ..."], fs: float, taus: Float[Array, " T
         x: rate samples, shape ``(N,)`` or ``(N, C)`` (one column per axis).
         fs: sampling rate [Hz].
         taus: requested cluster times [s]; rounded to whole samples, duplicates dropped, those
-            outside ``1 <= m <= N // 2`` dropped. Default: about 10 log-spaced sizes per decade.
+            outside ``1 <= m <= N // 2`` dropped. Default: about ``per_decade`` log-spaced sizes per decade.
+        per_decade: cluster sizes per decade when ``taus`` is None.
 
     Returns:
         :class:`AllanResult` (``adev`` always 2-D, ``(T, C)``).
@@ -117,7 +120,7 @@ def overlapping_adev(x: Float[Array, "N ..."], fs: float, taus: Float[Array, " T
     x = np.asarray(x, dtype=np.float64)
     x2 = x.reshape(x.shape[0], -1)
     n = x2.shape[0]
-    m = _cluster_sizes(n, fs, taus)
+    m = _cluster_sizes(n, fs, taus, per_decade)
     phase = np.empty((n + 1, x2.shape[1]))
     phase[0] = 0.0
     np.cumsum(x2 - x2.mean(axis=0), axis=0, out=phase[1:])

@@ -12,7 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from jaxcal import __version__, readers
-from jaxcal.cli import calibrate, diagnose, export, importer, simulate, sweep  # noqa: F401 - they register their commands
+from jaxcal.cli import calibrate, diagnose, export, importer, noise, simulate, sweep  # noqa: F401 - they register their commands
 from jaxcal.cli.calibrate import OPTION_FLAGS
 from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _Parser, register_command
 from jaxcal.methods import ModelError
