@@ -2,7 +2,9 @@
 
 :func:`mocap_summary` puts the RMS of the recording as it is (its maker's calibration, nothing
 fitted) beside the held-out RMS of jaxcal's baseline re-calibration and of the baseline plus the
-effects ``diagnose`` names, per sensor.
+effects ``diagnose`` names, per sensor. :func:`calibrated_rms` scores any calibrated output of a
+recording (e.g. a model fitted on another recording) against that recording's own mocap reference,
+in a given band, the way :func:`as_recorded_rms` scores the recording as it is.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import prepare as diag_prepare
 from jaxcal.diagnose.select import linearize_baseline
 
-__all__ = ["as_recorded_rms", "mocap_summary"]
+__all__ = ["as_recorded_rms", "calibrated_rms", "mocap_summary"]
 
 
 def as_recorded_rms(rec, baseline: str = "affine") -> dict[str, float]:
@@ -29,6 +31,45 @@ def as_recorded_rms(rec, baseline: str = "affine") -> dict[str, float]:
     for s, sd in prep.sensors.items():
         _, z = linearize_baseline(baseline, sd, E.identity_beta(baseline), np.zeros(E.N_THETA[s]))
         out[s] = float(np.sqrt(np.mean(z[sd.valid] ** 2)))
+    return out
+
+
+def calibrated_rms(rec, outputs: dict, sigma_by_sensor: dict[str, float]) -> dict[str, dict]:
+    """Per sensor, the RMS of calibrated outputs minus the reference ``diagnose`` derives from the
+    recording's pose, inside each sensor's trusted band (pure).
+
+    The calibrated outputs (g, rad/s, on the recording's samples; e.g. ``model.apply(rec)``) replace
+    the recording's ``acc``/``gyr``; the result is prepared as :func:`jaxcal.diagnose.diagnose_banded`
+    prepares each sensor (:func:`jaxcal.diagnose.prepare` with that sensor's Gaussian width: the
+    reference specific force / body rate from the pose, the outputs smoothed by the same kernel and
+    decimated alike, reference gaps and the kernel around them dropped) and scored with the identity
+    calibration over the valid rows, as :func:`as_recorded_rms` scores the recording as it is.
+    Input-referred (calibrated minus reference): on the recording it was fitted on, a baseline-only
+    ``diag`` model's residual is the diagnosis's in-sample baseline residual (output-referred)
+    divided by the fitted scale, row for row.
+
+    Args:
+        rec: a recording with a pose reference (``pos_ref`` + ``quat_ref``).
+        outputs: ``{"acc_cal": (N, 3) g, "gyr_cal": (N, 3) rad/s}`` (either may be absent).
+        sigma_by_sensor: each sensor's Gaussian width (s), e.g. ``prepare(rec, pose_sigma=None).sigma_by_sensor``.
+
+    Returns:
+        ``{sensor: {"rms", "rms_axes" (3,), "n_rows", "sigma_s"}}`` (g or rad/s) for the sensors in
+        both ``outputs`` and ``sigma_by_sensor``.
+    """
+    sens = [s for s in ("acc", "gyr") if f"{s}_cal" in outputs and s in sigma_by_sensor]
+    changes = {}
+    for s in sens:
+        changes.update({s: np.asarray(outputs[f"{s}_cal"], np.float64), f"{s}_unit": "g" if s == "acc" else "rad/s"})
+        changes.update({"acc_lsb_per_g": None, "acc_bias_lsb": None} if s == "acc" else {"gyr_lsb_per_rads": None, "gyr_bias_lsb": None})
+    cal = rec.replace(**changes)
+    out = {}
+    for s in sens:
+        sd = diag_prepare(cal, pose_sigma=float(sigma_by_sensor[s])).sensors[s]
+        _, z = linearize_baseline("diag", sd, E.identity_beta("diag"), np.zeros(E.N_THETA[s]))
+        zv = z[sd.valid]
+        out[s] = {"rms": float(np.sqrt(np.mean(zv**2))), "rms_axes": np.sqrt(np.mean(zv**2, axis=0)).tolist(),
+                  "n_rows": int(sd.valid.sum()), "sigma_s": float(sigma_by_sensor[s])}
     return out
 
 
