@@ -197,10 +197,12 @@ def fit_noise(
     - ``B = min adev / 0.664`` at the minimum; interval from the flicker-FM EDF. On a log with no
       flicker floor (white + random walk only) this is the bottom of the bathtub, an upper bound
       on B; the minimum of a noisy curve is also biased low by the pick itself.
-    - ``K = adev(tau_K) sqrt(3 / tau_K)`` at the smallest tau whose Allan variance is at least
-      ``white_share`` beyond the white line (``1 - N^2/(tau AVAR) >= white_share``: the +1/2 line
-      dominates there), i.e. the most degrees of freedom where the white part biases K by at most
-      about ``(1 - white_share)/2``; interval from the random-walk-FM EDF. NaN if no tau qualifies.
+    - ``K = sqrt(3 (AVAR(tau_K) - N^2 / tau_K) / tau_K)`` at the smallest tau whose Allan variance is
+      at least ``white_share`` beyond the white line (``1 - N^2/(tau AVAR) >= white_share``: the +1/2
+      line dominates there), i.e. the most degrees of freedom; the white line's part of AVAR is taken
+      out of the estimate and of both interval ends (read as is, it biased K up and the 95 % interval
+      covered the truth in 89 of 100 simulated 4 h logs; with it taken out, 98 of 100: see
+      ``results/noise.md``); interval from the random-walk-FM EDF. NaN if no tau qualifies.
 
     Each interval is the chi-square interval of the one ADEV it was read from (:func:`adev_interval`)
     scaled like the estimate; the uncertainty of N in the choice of tau_K is ignored.
@@ -234,8 +236,10 @@ def fit_noise(
         if ok.size:
             i = ok[0]
             lo, hi = adev_interval(adev[i : i + 1, j], edf_oadev(res.n_phase, res.m[i : i + 1], -2), level)
-            g = np.sqrt(3.0 / taus[i])
-            K[j], K_lo[j], K_hi[j], tau_K[j] = adev[i, j] * g, lo[0] * g, hi[0] * g, taus[i]
+            white = N[j] ** 2 / taus[i]  # the white line's share of AVAR there, taken out of the estimate and its interval
+            g = 3.0 / taus[i]
+            K[j], K_lo[j], K_hi[j] = (np.sqrt(max(v**2 - white, 0.0) * g) for v in (adev[i, j], lo[0], hi[0]))
+            tau_K[j] = taus[i]
     return NoiseParams(N, N_lo, N_hi, B, B_lo, B_hi, K, K_lo, K_hi, np.full(c, taus[i_n]), taus[i_b], tau_K, level)
 
 
