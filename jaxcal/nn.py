@@ -8,7 +8,7 @@ under ``jax.jit`` / ``lax.scan`` / ``vmap`` with no framework state.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -219,6 +219,7 @@ def fit_nn(
     max_epochs: int,
     warm_start: bool = False,
     row_chunk: int | None = None,
+    progress: Callable[[Any, Any, Any, Any], None] | None = None,
 ) -> tuple[NNCalibration, TrainResult]:
     """Fit the offline NN sensor model (section 3.3) with full-batch Adam and early stopping.
 
@@ -236,6 +237,8 @@ def fit_nn(
             (static).
         row_chunk: compute each epoch's gradient over blocks of this many rows
             (:func:`row_chunked_value_and_grad`; static); ``None``: all rows at once.
+        progress: optional host callback ``(epoch, train_loss, val_loss, best_val)`` every 100
+            epochs (:func:`jaxcal.train.fit_full_batch`; static, a side effect only).
 
     Returns:
         The calibration (best-validation parameters) and the training record.
@@ -253,7 +256,8 @@ def fit_nn(
         params0, _ = ridge_output_layer(mlp, params0, (u_tr, x_tr, w_tr), (u_va, x_va))
     vg = None if row_chunk is None or row_chunk >= u_tr.shape[0] else row_chunked_value_and_grad(mlp, row_chunk)
     result = fit_full_batch(
-        loss_fn, params0, (u_tr, x_tr, w_tr), (u_va, x_va, jnp.ones(u_va.shape[0])), config, max_epochs, vg
+        loss_fn, params0, (u_tr, x_tr, w_tr), (u_va, x_va, jnp.ones(u_va.shape[0])), config, max_epochs, vg,
+        progress=progress,
     )
     return NNCalibration(result.params, bounds), result
 

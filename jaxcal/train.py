@@ -73,6 +73,8 @@ def fit_full_batch(
     config: TrainConfig,
     max_epochs: int,
     value_and_grad: ValueAndGradFn | None = None,
+    progress: Callable[[Any, Any, Any, Any], None] | None = None,
+    progress_every: int = 100,
 ) -> TrainResult:
     """Train ``params`` with full-batch Adam until the validation loss stops improving.
 
@@ -86,6 +88,10 @@ def fit_full_batch(
         value_and_grad: ``(params, train_data) -> (loss, grads)`` of ``loss_fn`` computed another
             way (e.g. :func:`jaxcal.nn.row_chunked_value_and_grad`, which streams the rows in
             cache-sized blocks); ``None``: ``jax.value_and_grad(loss_fn)``.
+        progress: optional host callback ``progress(epoch, train_loss, val_loss, best_val)``,
+            called through ``jax.debug.callback`` every ``progress_every`` epochs (static; a side
+            effect only: the numbers the loop produces do not change). ``None``: no callback.
+        progress_every: epochs between two callbacks (static).
 
     Returns:
         :class:`TrainResult` with the best-validation parameters.
@@ -112,6 +118,9 @@ def fit_full_batch(
         since_best = jnp.where(improved, 0, since_best + 1)
         th = th.at[epoch].set(loss.astype(th.dtype))
         vh = vh.at[epoch].set(val.astype(vh.dtype))
+        if progress is not None:
+            jax.lax.cond((epoch + 1) % progress_every == 0,
+                         lambda: jax.debug.callback(progress, epoch + 1, loss, val, best_val), lambda: None)
         return epoch + 1, params, opt_state, best_params, best_val, best_epoch, since_best, th, vh
 
     val0 = loss_fn(params0, val_data)

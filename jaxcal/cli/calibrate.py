@@ -6,18 +6,19 @@ import argparse
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from jaxcal import methods
 from jaxcal.cli.core import Command, UsageError, _check_out_file, _count, _progress, _real, _seed, register_command
 from jaxcal.constants import GYR_RANGE_DEGS, SENSORS
-from jaxcal.methods import ModelError, MultiposOptions, NNOptions
+from jaxcal.methods import CalibrationModel, ModelError
+from jaxcal.methods.summary import describe, summary_lines
 from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import atomic_output, load_recording
 
-__all__: list[str] = []
+__all__ = ["OPTION_FLAGS", "Flag"]
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -57,20 +58,99 @@ def _degs_to_rads(v: float) -> float:
     return v * math.pi / 180.0
 
 
-# Method option field (the argparse dest) -> (flag, conversion of the flag's value to the option's).
-OPTION_FLAGS: dict[str, tuple[str, Callable[[Any], Any] | None]] = {
-    "seed": ("--seed", None),
-    "sensors": ("--sensors", None),
-    "widths": ("--widths", None),
-    "slope": ("--slope", None),
-    "learning_rate": ("--lr", None),
-    "patience": ("--patience", None),
-    "max_epochs": ("--max-epochs", None),
-    "val_fraction": ("--val-fraction", None),
-    "acc_range": ("--acc-range", None),
-    "gyr_range": ("--gyr-range", _degs_to_rads),
-    "turns": ("--turns", None),
-    "partial": ("--partial", None),
+class Flag(NamedTuple):
+    """A ``calibrate`` flag of a method option field.
+
+    Args:
+        flag: the flag, e.g. ``--lr``.
+        parse: text -> the flag's value (raises ``argparse.ArgumentTypeError``); ``None`` for a
+            switch (``const`` is its value).
+        conv: the flag's value -> the option's (e.g. deg/s -> rad/s), or ``None``.
+        help: what it does (the methods that take it and the default are added).
+        metavar: the value's name in the help.
+        const: the value of a switch (``parse`` is ``None``).
+        show_default: the default as the help shows it (``None``: the option's default).
+    """
+
+    flag: str
+    parse: Callable[[str], Any] | None
+    conv: Callable[[Any], Any] | None
+    help: str
+    metavar: str | None = None
+    const: Any = None
+    show_default: Any = None
+
+
+def _choice(*names: str) -> Callable[[str], str]:
+    def parse(text: str) -> str:
+        if text not in names:
+            raise argparse.ArgumentTypeError(f"expected one of {', '.join(names)}, got {text!r}")
+        return text
+
+    return parse
+
+
+# Method option field (the argparse dest) -> its flag. Every field of every registered options
+# type that a user needs is here; defaults come from the options types (one source of truth).
+OPTION_FLAGS: dict[str, Flag] = {
+    "seed": Flag("--seed", _seed, None, "PRNG seed in [0, 2**32 - 1]", "N"),
+    "sensors": Flag("--sensors", _sensors, None, "calibrate only these: acc, gyr or acc,gyr", "S", show_default="all labelled"),
+    # nn
+    "widths": Flag("--widths", _int_tuple, None, "hidden widths, e.g. 7500 or 5,10,5", "W[,W...]"),
+    "slope": Flag("--slope", _real(0.0, 1.0, open_low=False), None, "leaky-ReLU slope in [0, 1]", "A"),
+    "learning_rate": Flag("--lr", _real(0.0, 10.0), None, "Adam learning rate", "LR"),
+    "patience": Flag("--patience", _count(1, 10**9), None, "early-stopping patience in epochs", "N"),
+    "max_epochs": Flag("--max-epochs", _count(1, 10**9), None, "maximum full-batch epochs", "N"),
+    "val_fraction": Flag("--val-fraction", _real(0.0, 0.99), None,
+                         "share of labelled samples held out for early stopping, whole sequences if `seq` is given", "F"),
+    "acc_range": Flag("--acc-range", _real(0.0, 1e6), None, "accelerometer full scale in g for eq. 3.6 bounds", "G"),
+    "gyr_range": Flag("--gyr-range", _real(0.0, 1e6), _degs_to_rads, "gyroscope full scale in deg/s for eq. 3.6 bounds",
+                      "DEG_S", show_default=GYR_RANGE_DEGS),
+    "min_rel_delta": Flag("--min-rel-delta", _real(0.0, 1.0, open_low=False), None,
+                          "relative fall of the validation loss that counts as an improvement", "R"),
+    "warm_start": Flag("--no-warm-start", None, None, "start Adam from the random initialisation, not from the ridge "
+                       "least-squares output layer", const=False, show_default="warm start"),
+    # cubic
+    "degree": Flag("--degree", _count(1, 9), None, "polynomial degree", "D"),
+    "ridge": Flag("--ridge", _real(0.0, 1e12, open_low=False), None, "ridge penalty on the polynomial coefficients", "R"),
+    # multipos
+    "turns": Flag("--turns", _turns, None, "whole turns about the vertical (e.g. turned flat on a table), start-end in "
+                  "seconds; their axes are read from the accelerometer at the rests around them (no labels)",
+                  "T0-T1[,T0-T1...]", show_default="none"),
+    "partial": Flag("--partial", None, None, "when the poses do not determine every combination, fit only those they do "
+                    "and leave the rest as recorded (recordings in g and rad/s; an undetermined gyroscope is not "
+                    "calibrated) instead of refusing", const=True, show_default="refuse"),
+    "acc_model": Flag("--acc-model", _choice("9", "12"), None, "accelerometer model: 9 (3 scales, 3 misalignment "
+                      "angles, bias) or 12 (full 3x3 and bias)", "9|12"),
+    "gyro_bias": Flag("--gyro-bias", _choice("static", "init"), None,
+                      "gyro bias from all rests (static) or the initial rest only (init, as imu_tk)", "static|init"),
+    "datasheet_prior": Flag("--datasheet-prior", None, None, "MAP fit with the recording's datasheet scales "
+                            "(acc_lsb_per_g, gyr_lsb_per_rads) as prior centre, tolerances --prior-scale and "
+                            "--prior-cross (results/real.md: MPU-6050 held out 0.79 -> 0.66 mg)", const=True,
+                            show_default="off"),
+    "prior_scale": Flag("--prior-scale", _real(0.0, 10.0), None,
+                        "prior std of the relative scale around the datasheet value (sensitivity tolerance)", "S"),
+    "prior_cross": Flag("--prior-cross", _real(0.0, 10.0), None, "prior std of the cross-axis terms", "S"),
+    "init_duration": Flag("--init-duration", _real(0.0, 1e6), None, "seconds of initial rest that set the rest "
+                          "detector's threshold", "SEC", show_default="10 %% of the recording, at most 30 s"),
+    "min_rest": Flag("--min-rest", _real(0.0, 1e6), None, "shortest rest (pose) kept, in seconds", "SEC"),
+    "rest_window": Flag("--rest-window", _real(0.0, 1e6), None, "moving-variance window of the rest detector, seconds",
+                        "SEC"),
+    # online
+    "kind": Flag("--kind", _choice("affine", "diag"), None, "filter model: affine (scale, cross-axis, bias) or diag "
+                 "(scale, bias)", "affine|diag"),
+    "sigma_acc": Flag("--sigma-acc", _real(0.0, 1.0), None, "accelerometer noise std of the filter, in g",
+                      "G", show_default="measured at the rests; 1.8e-5 with seq ids"),
+    "n_iter": Flag("--n-iter", _count(1, 100), None, "Gauss-Newton iterations per sequence", "N",
+                   show_default="8 between rests, 4 with seq ids"),
+    "forgetting": Flag("--forgetting", _real(0.0, 1.0), None, "information forgetting factor per sequence, in (0, 1]",
+                       "L"),
+    "rest_pad": Flag("--rest-pad", _real(0.0, 1e6), None, "seconds of each rest streamed with the motions around it "
+                     "(recordings without seq ids)", "SEC"),
+    "folds": Flag("--folds", _count(2, 1000), None, "interleaved rest folds of the held-out figure", "K"),
+    # diagnosed
+    "baseline": Flag("--baseline", _choice("diag", "affine"), None, "baseline sensor model diagnosed against: diag "
+                     "(thesis eq. 4.6) or affine (eq. 2.3), as `jaxcal diagnose --baseline`", "diag|affine"),
 }
 
 
@@ -85,8 +165,14 @@ def _used_by(field: str) -> str:
     return " and ".join(m.name for m in methods.REGISTRY.values() if field in m.options._fields)
 
 
+def _default_text(field: str, spec: Flag, defaults: dict[str, Any]) -> str:
+    d = spec.show_default if spec.show_default is not None else defaults.get(field)
+    if isinstance(d, tuple):
+        d = ",".join(map(str, d))
+    return f"{d:g}" if isinstance(d, float) else str(d)
+
+
 def _add_calibrate(p: argparse.ArgumentParser) -> None:
-    nn = NNOptions._field_defaults
     p.add_argument("recording", metavar="RECORDING", help="recording (.npz or .csv; see CONVENTIONS.md)")
     p.add_argument(
         "--method",
@@ -95,74 +181,67 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
         help="calibration method (`jaxcal methods` says what each needs)",
     )
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
-    p.add_argument("--seed", type=_seed, default=nn["seed"],
-                   help=f"PRNG seed in [0, 2**32 - 1] ({_used_by('seed')}; default {nn['seed']})")
-    p.add_argument("--sensors", type=_sensors, default=nn["sensors"],
-                   help=f"calibrate only these: acc, gyr or acc,gyr ({_used_by('sensors')}; default all)")
-    g = p.add_argument_group("nn options")
-    g.add_argument("--widths", type=_int_tuple, default=nn["widths"],
-                   help=f"hidden widths, e.g. 7500 or 5,10,5 (default {','.join(map(str, nn['widths']))})")
-    g.add_argument("--slope", type=_real(0.0, 1.0, open_low=False), default=nn["slope"],
-                   help=f"leaky-ReLU slope in [0, 1] (default {nn['slope']:g})")
-    g.add_argument("--lr", dest="learning_rate", metavar="LR", type=_real(0.0, 10.0), default=nn["learning_rate"],
-                   help=f"Adam learning rate (default {nn['learning_rate']:g})")
-    g.add_argument("--patience", type=_count(1, 10**9), default=nn["patience"],
-                   help=f"early-stopping patience in epochs (default {nn['patience']})")
-    g.add_argument("--max-epochs", type=_count(1, 10**9), default=nn["max_epochs"],
-                   help=f"maximum full-batch epochs (default {nn['max_epochs']})")
-    g.add_argument(
-        "--val-fraction",
-        type=_real(0.0, 1.0),
-        default=nn["val_fraction"],
-        help=f"share of labelled samples held out for early stopping, whole sequences if `seq` is given "
-        f"(default {nn['val_fraction']:g})",
-    )
-    g.add_argument("--acc-range", type=_real(0.0, 1e6), default=nn["acc_range"],
-                   help=f"accelerometer full scale in g for eq. 3.6 bounds (default {nn['acc_range']:g})")
-    g.add_argument("--gyr-range", type=_real(0.0, 1e6), default=GYR_RANGE_DEGS,
-                   help=f"gyroscope full scale in deg/s for eq. 3.6 bounds (default {GYR_RANGE_DEGS:g})")
-    mp = MultiposOptions._field_defaults
-    m = p.add_argument_group("multipos options")
-    m.add_argument(
-        "--turns", type=_turns, default=mp["turns"], metavar="T0-T1[,T0-T1...]",
-        help="whole turns about the vertical (e.g. turned flat on a table), start-end in seconds; their axes "
-        "are read from the accelerometer at the rests around them (no labels)",
-    )
-    m.add_argument(
-        "--partial", action="store_const", const=True, default=mp["partial"],
-        help="when the poses do not determine every combination, fit only those they do and leave the rest "
-        "as recorded (recordings in g and rad/s; an undetermined gyroscope is not calibrated) instead of refusing",
-    )
+    p.add_argument("--no-held-out", dest="held_out", action="store_false",
+                   help="skip the held-out figure (leave-poses-out, rest folds or a validation refit: seconds)")
+    defaults = _option_defaults()
+    groups: dict[str, argparse._ArgumentGroup] = {}
+    for field, spec in OPTION_FLAGS.items():
+        used = _used_by(field)
+        if not used:
+            continue
+        g = groups.setdefault(used, p.add_argument_group(f"options of {used}"))
+        text = f"{spec.help} ({used}; default {_default_text(field, spec, defaults)})"
+        if spec.parse is None:
+            g.add_argument(spec.flag, dest=field, action="store_const", const=spec.const, default=argparse.SUPPRESS,
+                           help=text)
+        else:
+            g.add_argument(spec.flag, dest=field, default=argparse.SUPPRESS, metavar=spec.metavar, help=text)
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
 
 
 def _method_options(args: argparse.Namespace) -> Any:
-    """The options of ``args.method`` from the flags; a flag set away from its default that the
-    method does not take is a usage error naming the flag and the methods that take it."""
+    """The options of ``args.method`` from the flags given (the others keep the options type's
+    defaults). Every problem (a value that does not parse, a flag of another method) is collected
+    and reported at once, naming the flags, as one usage error."""
     kind = methods.get(args.method).options
-    values = {f: (conv(getattr(args, f)) if conv else getattr(args, f)) for f, (_, conv) in OPTION_FLAGS.items()}
-    defaults = _option_defaults()
-    for f, v in values.items():
-        if f not in kind._fields and f in defaults and v != defaults[f]:
-            raise UsageError(f"{OPTION_FLAGS[f][0]} is an option of {_used_by(f)}, not of {args.method}")
-    return kind(**{f: v for f, v in values.items() if f in kind._fields})
+    values, errors = {}, []
+    for field, spec in OPTION_FLAGS.items():
+        if not hasattr(args, field):
+            continue
+        raw = getattr(args, field)
+        try:
+            v = raw if spec.parse is None or not isinstance(raw, str) else spec.parse(raw)
+        except argparse.ArgumentTypeError as e:
+            errors.append(f"{spec.flag}: {e}")
+            v = None
+        if field not in kind._fields:
+            errors.append(f"{spec.flag} is an option of {_used_by(field) or 'no method'}, not of {args.method}")
+        elif v is not None or spec.parse is None:
+            values[field] = spec.conv(v) if spec.conv else v
+    if errors:
+        raise UsageError(f"calibrate --method {args.method}: " + "; ".join(errors))
+    return kind(**values)
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")
     _check_out_file(args.out, [args.recording])
-    if not 0.0 < args.val_fraction < 1.0:
-        raise UsageError(f"--val-fraction must lie in (0, 1), got {args.val_fraction}")
     options = _method_options(args)  # before reading data
     rec = load_recording(args.recording)
     log = _progress(args)
     t0 = time.perf_counter()
     try:
         model = methods.fit(args.method, rec, options, log=log)
+        if log and args.held_out:
+            log("scoring the fit held out (--no-held-out skips this) ...")
+        desc = describe(args.method, rec, options, model, log or (lambda msg: None), held_out=args.held_out)
     except ModelError as e:  # the recording does not suit the method: say which file
         raise ModelError(f"{args.recording}: {e}") from None
+    model = CalibrationModel(model.method, model.sensors, model.state, {**model.meta, **desc})
     save_model(model, args.out)
+    for line in summary_lines(desc):
+        print(line)
     if log:
         log(f"wrote {args.out} ({args.method}, sensors {','.join(model.sensors)}) in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -5,7 +5,10 @@ applied as the linear methods are."""
 from __future__ import annotations
 
 import time
-from typing import NamedTuple
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
 
 from jaxcal.constants import SENSORS
 from jaxcal.methods.base import (
@@ -19,10 +22,10 @@ from jaxcal.methods.base import (
     require_both,
     units,
 )
-from jaxcal.multipos import fit_multipos_recording
+from jaxcal.multipos import DatasheetPrior, DetectOptions, MultiposConfig, detect_and_fit, fit_multipos_recording, leave_poses_out, prepare
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "fit"]
+__all__ = ["METHOD", "MultiposOptions", "detect_options", "fit", "heldout", "multipos_config"]
 
 
 class MultiposOptions(NamedTuple):
@@ -33,10 +36,66 @@ class MultiposOptions(NamedTuple):
             their axes are read from the accelerometer at the rests around them (no labels).
         partial: when the poses do not determine every combination, fit only those they do and
             leave the rest as recorded, instead of refusing.
+        acc_model: ``"9"`` (scale, 3 misalignment angles, bias) or ``"12"`` (full 3x3 and bias).
+        gyro_bias: ``"static"`` (mean over all rests) or ``"init"`` (the initial rest, as imu_tk).
+        datasheet_prior: MAP with the recording's datasheet scales (``acc_lsb_per_g``,
+            ``gyr_lsb_per_rads``) as prior centre (:class:`~jaxcal.multipos.DatasheetPrior`).
+        prior_scale: the prior's relative scale tolerance (datasheet sensitivity tolerance).
+        prior_cross: the prior's cross-axis tolerance (datasheet cross-axis sensitivity).
+        init_duration: seconds of initial rest that set the rest threshold; ``None``: the first
+            10 % of the recording, at most 30 s.
+        min_rest: shortest rest (pose) kept, seconds.
+        rest_window: moving-variance window of the rest detector, seconds.
     """
 
     turns: tuple[tuple[float, float], ...] | None = None
     partial: bool = False
+    acc_model: str = "9"
+    gyro_bias: str = "static"
+    datasheet_prior: bool = False
+    prior_scale: float = 0.03
+    prior_cross: float = 0.02
+    init_duration: float | None = None
+    min_rest: float = 1.0
+    rest_window: float = 1.0
+
+
+def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
+    """The :class:`~jaxcal.multipos.MultiposConfig` of ``options`` on ``rec`` (the datasheet prior
+    reads the recording's datasheet scales; refused without them).
+
+    Args:
+        rec: the recording.
+        options: :class:`MultiposOptions`.
+    """
+    if options.acc_model not in ("9", "12"):
+        raise ModelError(f"multipos: --acc-model must be 9 or 12, got {options.acc_model!r}")
+    if options.gyro_bias not in ("static", "init"):
+        raise ModelError(f"multipos: --gyro-bias must be static or init, got {options.gyro_bias!r}")
+    prior = None
+    if options.datasheet_prior:
+        per = {}
+        for s, key in (("acc", "acc_lsb_per_g"), ("gyr", "gyr_lsb_per_rads")):
+            if getattr(rec, f"{s}_unit") in ("g", "rad/s"):
+                per[s] = 1.0
+                continue
+            v = getattr(rec, key)
+            if v is None:
+                raise ModelError(f"multipos --datasheet-prior needs '{key}' in the recording metadata")
+            per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
+        prior = DatasheetPrior(per["acc"], per["gyr"], float(options.prior_scale), float(options.prior_cross))
+    return MultiposConfig(acc_model=options.acc_model, gyro_bias=options.gyro_bias, prior=prior)
+
+
+def detect_options(rec: Recording, options: MultiposOptions) -> DetectOptions:
+    """:meth:`~jaxcal.multipos.DetectOptions.for_recording` with the rest options of ``options``.
+
+    Args:
+        rec: the recording.
+        options: :class:`MultiposOptions`.
+    """
+    return DetectOptions.for_recording(rec)._replace(
+        init_duration=options.init_duration, min_duration=float(options.min_rest), window=float(options.rest_window))
 
 
 def _say_quality(q: dict, log: Log) -> None:
@@ -63,7 +122,8 @@ def fit(rec: Recording, options: MultiposOptions, log: Log) -> Fitted:
     # data contradict) come from the fit itself and must stay the only line on stderr.
     t0 = time.perf_counter()
     try:
-        acc_cal, gyr_cal, q = fit_multipos_recording(rec, turn_times=options.turns, partial=options.partial, summary=True)
+        acc_cal, gyr_cal, q = fit_multipos_recording(rec, multipos_config(rec, options), detect=detect_options(rec, options),
+                                                     turn_times=options.turns, partial=options.partial, summary=True)
     except ValueError as e:
         raise ModelError(f"multipos: {e}") from None
     elapsed = time.perf_counter() - t0
@@ -74,6 +134,38 @@ def fit(rec: Recording, options: MultiposOptions, log: Log) -> Fitted:
     _say_quality(q, log)
     sensors = tuple(s for s in SENSORS if s in state)
     return Fitted(sensors, state, {"units": units(rec, sensors), "fit_seconds": elapsed, "fit_quality": q})
+
+
+def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Leave-one-pose-out quality of ``multipos`` on ``rec`` (:func:`jaxcal.multipos.leave_poses_out`:
+    every fold fitted in one ``vmap``): each pose's ``| |f| - 1 g |`` from the fit that left it out
+    (RMS, mg), and each usable transition's carried-gravity angle from the fit that left it out
+    (median, deg). The poses are those the fit detected; turns (``--turns``) are not used by the
+    folds. With ``--partial`` the folds fit what the whole fit did (``meta["fit_quality"]["partial"]``).
+
+    Args:
+        rec: the recording the model was fitted on.
+        options: :class:`MultiposOptions` of the fit.
+        meta: the fitted model's metadata (for ``--partial``), or ``None``.
+    """
+    config = multipos_config(rec, options)
+    kept = ((meta or {}).get("fit_quality") or {}).get("partial", {})
+    if "acc" in kept:
+        config = config._replace(acc_fit="determined")
+    if "gyr" in kept:
+        config = config._replace(gyr_fit="none")
+    det = detect_options(rec, options)
+    try:
+        _, iv, _ = detect_and_fit(rec.t, rec.acc, rec.gyr, config, detect=det, check=False)
+        data = prepare(rec.t, rec.acc, rec.gyr, iv, gyr_limit=det.gyr_limit, midpoint=config.midpoint)
+        ho = leave_poses_out(data, config)
+    except ValueError as e:
+        raise ModelError(f"multipos held out: {e}") from None
+    eg = ho.gyr_err[np.isfinite(ho.gyr_err)]
+    return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ho.acc_err**2))),
+            "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None,
+            "how": f"leave-one-pose-out, {len(ho.acc_err)} poses, {eg.size} transitions"
+            + ("; turns not used by the folds" if options.turns else "")}
 
 
 METHOD = Method(

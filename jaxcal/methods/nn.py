@@ -109,11 +109,23 @@ def fit(rec: Recording, options: NNOptions, log: Log) -> Fitted:
                          min_rel_delta=options.min_rel_delta)
     max_epochs = int(options.max_epochs)
 
+    clock = {"t0": time.perf_counter(), "sensor": ""}
+
+    def progress(epoch, loss, val, best):
+        """Host side of the training loop's progress callback: epoch, losses as RMS, and an ETA to
+        the epoch cap (early stopping usually ends sooner)."""
+        e = int(epoch)
+        spent = time.perf_counter() - clock["t0"]
+        eta = spent / e * (max_epochs - e)
+        log(f"nn ({clock['sensor']}): epoch {e}/{max_epochs}, train rms {math.sqrt(3.0 * float(loss)):.3g}, "
+            f"validation rms {math.sqrt(3.0 * float(val)):.3g} (best {math.sqrt(3.0 * float(best)):.3g}), "
+            f"{spent:.0f} s, at most {eta:.0f} s left")
+
     @jax.jit
     def train(key, bounds, y_tr, x_tr, y_va, x_va):
         w_tr = jnp.ones(y_tr.shape[0], jnp.float32)
         return fit_nn(key, mlp, bounds, (y_tr, x_tr, w_tr), (y_va, x_va), config, max_epochs,
-                      bool(options.warm_start), options.row_chunk)
+                      bool(options.warm_start), options.row_chunk, progress=progress)
 
     state: dict[str, Any] = {}
     meta: dict[str, Any] = {
@@ -143,6 +155,7 @@ def fit(rec: Recording, options: NNOptions, log: Log) -> Fitted:
         log(f"fitting nn ({s}) on {int((~val).sum())} samples ({int(val.sum())} held out for early stopping), "
             f"widths {widths}, up to {max_epochs} epochs ...")
         t0 = time.perf_counter()
+        clock.update(t0=t0, sensor=s)
         cal, res = train(
             keys[SENSORS.index(s)],
             bounds,

@@ -1,0 +1,228 @@
+"""What ``jaxcal calibrate`` reports about a fitted model: its parameters in familiar units and its
+quality in-sample and held out.
+
+* :func:`linear_parameters`: a forward affine model ``y = S x + b`` as bias (mg, deg/s), scale
+  factor (ppm and % from the nominal/datasheet scale), misalignment and non-orthogonality (mrad).
+* :func:`labelled_quality`: in-sample and validation-split RMS of the labelled methods (``linear``,
+  ``cubic`` refit on the training rows; ``nn`` scored on the rows its early stopping held out).
+* :func:`describe`: the ``parameters`` / ``in_sample`` / ``held_out`` metadata entries of any
+  registered method's model (CONVENTIONS.md, "Model files"); :func:`summary_lines` prints them.
+
+Held-out figures of the self-calibration methods live in their modules
+(:func:`jaxcal.methods.multipos.heldout`, :func:`jaxcal.methods.online.heldout`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from jaxcal.constants import SENSORS
+from jaxcal.methods.base import REF_KEY, Log, ModelError, holdout_mask, recording_spec, rms
+from jaxcal.recording import Recording
+
+__all__ = ["describe", "labelled_quality", "linear_parameters", "summary_lines", "take_rows"]
+
+_PER_SAMPLE = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref", "mag",
+               "ref_valid", "section")
+_BIAS_UNIT = {"acc": ("mg", 1e3), "gyr": ("deg/s", 180.0 / math.pi)}
+_RMS_KEY = {"acc": ("acc_rms_mg", 1e3), "gyr": ("gyr_rms_degs", 180.0 / math.pi)}
+
+
+def take_rows(rec: Recording, mask: np.ndarray) -> Recording:
+    """The recording restricted to the rows where ``mask`` is true (per-sample fields only; extras
+    and reference tracks dropped).
+
+    Args:
+        rec: the recording.
+        mask: (N,) bool.
+    """
+    changes = {f: np.asarray(getattr(rec, f))[mask] for f in _PER_SAMPLE if getattr(rec, f) is not None}
+    return rec.replace(**changes, extra={}, gt_t=None, gt_pos=None, gt_quat=None)
+
+
+def linear_parameters(S: np.ndarray, b: np.ndarray, sensor: str, nominal: np.ndarray | None,
+                      recorded_unit: str | None = None) -> dict[str, Any]:
+    """A forward affine model ``y = S x + b`` (``y`` recorded, ``x`` in g or rad/s) in familiar units.
+
+    * ``bias``: the input-referred bias ``S^-1 b`` in mg (acc) or deg/s (gyr), per axis; with
+      ``recorded_unit`` ``"LSB"`` also ``offset_lsb``, ``b`` itself (e.g. ~32768 for unsigned counts);
+    * ``scale``: each axis's sensitivity ``|S[i, :]|`` (recorded unit per g or rad/s);
+      ``scale_ppm`` / ``scale_pct``: its deviation from ``nominal`` (datasheet; 1 in physical units),
+      absent without a nominal;
+    * ``misalignment_mrad``: (3, 3) the row-normalised ``S`` minus the identity (small angles: entry
+      ``[i, j]`` is how far axis ``i`` leans towards ``j``), in mrad;
+    * ``nonorthogonality_mrad``: ``{"xy", "xz", "yz"}``: 90 deg minus the angle between two sensitive
+      axes, in mrad.
+
+    Args:
+        S: (3, 3) forward matrix.
+        b: (3,) forward bias (recorded unit).
+        sensor: ``"acc"`` or ``"gyr"``.
+        nominal: (3,) or () nominal scale (recorded unit per g or rad/s), or ``None``.
+        recorded_unit: the recording's unit of ``sensor`` (``"LSB"`` adds ``offset_lsb``), or ``None``.
+    """
+    S = np.asarray(S, np.float64)
+    b = np.asarray(b, np.float64)
+    unit, k = _BIAS_UNIT[sensor]
+    scale = np.linalg.norm(S, axis=1)
+    u = S / scale[:, None]
+    out: dict[str, Any] = {
+        "bias_unit": unit,
+        "bias": (k * np.linalg.solve(S, b)).tolist(),
+        "scale": scale.tolist(),
+        "misalignment_mrad": (1e3 * (u - np.eye(3))).tolist(),
+        "nonorthogonality_mrad": {f"{'xyz'[i]}{'xyz'[j]}": float(1e3 * np.arcsin(np.clip(u[i] @ u[j], -1, 1)))
+                                  for i, j in ((0, 1), (0, 2), (1, 2))},
+    }
+    if recorded_unit == "LSB":
+        out["offset_lsb"] = b.tolist()
+    if nominal is not None:
+        dev = scale / np.broadcast_to(np.asarray(nominal, np.float64), (3,)) - 1.0
+        out["scale_ppm"] = (1e6 * dev).tolist()
+        out["scale_pct"] = (1e2 * dev).tolist()
+    return out
+
+
+def _nominal(rec: Recording, sensor: str) -> np.ndarray | None:
+    spec = recording_spec(rec, sensor)
+    return None if spec is None else np.asarray(spec.s, np.float64)
+
+
+def _rms_entry(res: Mapping[str, float]) -> dict[str, float]:
+    """``sensor -> rms`` (g, rad/s) as ``{"acc_rms_mg", "gyr_rms_degs"}``."""
+    return {_RMS_KEY[s][0]: _RMS_KEY[s][1] * v for s, v in res.items()}
+
+
+def labelled_quality(method: str, rec: Recording, options: Any, model: Any, log: Log) -> tuple[dict, dict]:
+    """In-sample and held-out RMS against the labels of a labelled method's model.
+
+    ``linear`` and ``cubic`` are refitted on the rows :func:`~jaxcal.methods.base.holdout_mask`
+    keeps (15 %, whole sequences when ``seq`` has 4 or more) and scored on the others; ``nn`` is
+    not refitted (minutes): it is scored on the rows its early stopping held out (optimistic:
+    they chose the epoch).
+
+    Args:
+        method: ``"linear"``, ``"cubic"`` or ``"nn"``.
+        rec: the labelled recording the model was fitted on.
+        options: the fit's options.
+        model: the fitted :class:`~jaxcal.methods.CalibrationModel`.
+        log: progress sink.
+
+    Returns:
+        ``(in_sample, held_out)``: ``{"acc_rms_mg", "gyr_rms_degs"}`` for the fitted sensors, and
+        the held-out one with ``how`` (what was held out).
+    """
+    from jaxcal import methods  # the registry imports this package's modules
+
+    fraction = float(getattr(options, "val_fraction", 0.15))
+    val = holdout_mask(rec, fraction)
+    out = model.apply(rec)
+    sensors = [s for s in model.sensors if f"{s}_cal" in out]
+    refs = {s: np.asarray(getattr(rec, REF_KEY[s]), np.float64) for s in sensors}
+    if method == "nn":
+        ins = _rms_entry({s: rms((out[f"{s}_cal"] - refs[s])[~val]) for s in sensors})
+        ho = _rms_entry({s: rms((out[f"{s}_cal"] - refs[s])[val]) for s in sensors})
+        ho["how"] = f"the {int(val.sum())} rows ({fraction:.0%}) held out for early stopping (they chose the epoch)"
+        return ins | {"how": "training rows"}, ho
+    ins = _rms_entry({s: rms(out[f"{s}_cal"] - refs[s]) for s in sensors}) | {"how": "all rows"}
+    log(f"held out: refitting {method} on {int((~val).sum())} rows, scoring {int(val.sum())} ...")
+    sub = methods.fit(method, take_rows(rec, ~val), options)
+    out_va = sub.apply(take_rows(rec, val))
+    ho = _rms_entry({s: rms(out_va[f"{s}_cal"] - refs[s][val]) for s in sensors if f"{s}_cal" in out_va})
+    what = "whole sequences" if rec.seq is not None and len(np.unique(rec.seq)) >= 4 else "every k-th row"
+    ho["how"] = f"validation split: refitted on {int((~val).sum())} rows, scored on {int(val.sum())} ({what}, {fraction:.0%})"
+    return ins, ho
+
+
+def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *, held_out: bool = True) -> dict[str, Any]:
+    """The metadata entries ``parameters``, ``in_sample`` and ``held_out`` of a fitted model.
+
+    Args:
+        method: the registered method's name.
+        rec: the recording the model was fitted on.
+        options: the fit's options.
+        model: the fitted :class:`~jaxcal.methods.CalibrationModel`.
+        log: progress sink.
+        held_out: compute the held-out figure (a refit or folds: seconds); ``False``: skip it.
+
+    Returns:
+        ``{"parameters": {sensor: ...}, "in_sample": {...}, "held_out": {...}}``; ``parameters``
+        only for linear-state models (``S``, ``b`` per sensor); ``held_out`` holds ``error`` when it
+        cannot be computed, ``skipped`` when not asked for.
+    """
+    from jaxcal.methods import multipos, online
+
+    params = {}
+    for s in SENSORS:
+        st = model.state.get(s)
+        if isinstance(st, Mapping) and "S" in st and "b" in st:
+            params[s] = linear_parameters(st["S"], st["b"], s, _nominal(rec, s), getattr(rec, f"{s}_unit"))
+    out: dict[str, Any] = {"parameters": params} if params else {}
+    try:
+        if method == "multipos":
+            q = model.meta.get("fit_quality", {})
+            out["in_sample"] = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
+                                "how": "all poses and transitions"}
+            ho = multipos.heldout(rec, options, model.meta) if held_out else None
+        elif method == "online":
+            ins, ho = online.quality(rec, options, model, held_out=held_out, log=log)
+            out["in_sample"] = ins
+        elif method in ("linear", "cubic", "nn"):
+            ins, ho = labelled_quality(method, rec, options, model, log) if held_out else (None, None)
+            if ins is not None:
+                out["in_sample"] = ins
+        else:
+            ho = None
+            if held_out:
+                ho = {"error": f"no built-in held-out score for '{method}'"}
+    except ModelError as e:
+        ho = {"error": str(e)}
+    out["held_out"] = ho if held_out else {"skipped": "not asked for, --no-held-out"}
+    if out["held_out"] is None:
+        out["held_out"] = {"error": "not computed"}
+    return out
+
+
+def _fmt3(v: Any, f: str = "+.3f") -> str:
+    return "[" + ", ".join(format(float(x), f) for x in v) + "]"
+
+
+def _quality_text(q: Mapping[str, Any]) -> str:
+    if "error" in q:
+        return f"not available ({q['error']})"
+    if "skipped" in q:
+        return f"skipped ({q['skipped']})"
+    names = {"acc_rms_mg": ("acc RMS", "mg"), "gyr_rms_degs": ("gyr RMS", "deg/s"),
+             "gyr_median_deg": ("carried-gravity median", "deg")}
+    parts = [f"{names[k][0]} {q[k]:.3f} {names[k][1]}" for k in names if q.get(k) is not None]
+    if q.get("acc_rms_mg") is not None and "gyr_rms_degs" not in q and "gyr_median_deg" in q:
+        parts[0] = parts[0].replace("acc RMS", "acc | |f| - 1 g | RMS")
+    return ", ".join(parts) + (f" ({q['how']})" if q.get("how") else "")
+
+
+def summary_lines(desc: Mapping[str, Any]) -> list[str]:
+    """Human-readable lines of :func:`describe`'s result (what ``jaxcal calibrate`` prints).
+
+    Args:
+        desc: :func:`describe`'s result.
+    """
+    lines = []
+    for s, p in desc.get("parameters", {}).items():
+        scale = (f"scale deviation {_fmt3(p['scale_ppm'], '+.0f')} ppm ({_fmt3(p['scale_pct'], '+.3f')} %)"
+                 if "scale_ppm" in p else f"scale {_fmt3(p['scale'], '.6g')} per {'g' if s == 'acc' else 'rad/s'}")
+        mis = np.asarray(p["misalignment_mrad"])
+        off = [mis[i, j] for i in range(3) for j in range(3) if i != j]
+        no = p["nonorthogonality_mrad"]
+        offset = f" (offset {_fmt3(p['offset_lsb'], '.1f')} LSB)" if "offset_lsb" in p else ""
+        lines.append(f"{s}: bias {_fmt3(p['bias'])} {p['bias_unit']}{offset}; {scale}")
+        lines.append(f"{s}: misalignment xy xz yx yz zx zy {_fmt3(off, '+.2f')} mrad; non-orthogonality "
+                     f"xy {no['xy']:+.2f}, xz {no['xz']:+.2f}, yz {no['yz']:+.2f} mrad")
+    if "in_sample" in desc:
+        lines.append(f"in-sample: {_quality_text(desc['in_sample'])}")
+    if "held_out" in desc:
+        lines.append(f"held out: {_quality_text(desc['held_out'])}")
+    return lines
