@@ -13,6 +13,7 @@ argument or ``@pytest.mark.usefixtures("x64")``) instead of opening ``jax.enable
 """
 
 import functools
+import os
 
 import jax
 import margins
@@ -20,6 +21,11 @@ import pytest
 
 import jaxcal.diagnose as _diagnose
 from jaxcal.diagnose.report import promise_violations
+
+# The CLI keeps compiled code in the user's cache folder unless told otherwise: tests never write there
+# (`make test` sets JAX_COMPILATION_CACHE_DIR to the checkout's .jax_cache; a bare pytest run uses none).
+if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+    os.environ.setdefault("JAXCAL_NO_CACHE", "1")
 
 CHECKED_REPORTS = [0]
 

@@ -8,8 +8,10 @@ import.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from jaxcal import __version__, readers
 from jaxcal.cli import calibrate, diagnose, export, importer, noise, simulate, sweep  # noqa: F401 - they register their commands
@@ -18,7 +20,8 @@ from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _Parser, regist
 from jaxcal.methods import ModelError
 from jaxcal.recording import RecordingError
 
-__all__ = ["COMMANDS", "OPTION_FLAGS", "PROG", "Command", "UsageError", "build_parser", "main", "register_command"]
+__all__ = ["COMMANDS", "NO_CACHE_ENV", "OPTION_FLAGS", "PROG", "Command", "UsageError", "build_parser", "cache_dir", "main",
+           "register_command"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,7 +40,43 @@ def build_parser() -> argparse.ArgumentParser:
     for name, cmd in COMMANDS.items():
         p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help)
         cmd.add_arguments(p)
+        p.add_argument("--no-cache", action="store_true", default=argparse.SUPPRESS,
+                       help=f"do not use the persistent compilation cache ({NO_CACHE_ENV}=1 does the same)")
     return parser
+
+
+NO_CACHE_ENV = "JAXCAL_NO_CACHE"
+CACHE_MIN_COMPILE_SECS = 0.5  # as the Makefile: cache every compile worth keeping ...
+CACHE_MIN_ENTRY_BYTES = 0  # ... whatever its size
+
+
+def cache_dir(environ: dict[str, str] | None = None) -> Path | None:
+    """The persistent compilation cache ``main`` uses: ``None`` when ``JAX_COMPILATION_CACHE_DIR``
+    is set (jax then uses it as it is) or ``JAXCAL_NO_CACHE`` is set to a non-empty value other than
+    ``0``; else ``$XDG_CACHE_HOME/jaxcal/jax`` (``~/.cache/jaxcal/jax``).
+
+    Args:
+        environ: the environment (``os.environ`` if ``None``).
+    """
+    env = os.environ if environ is None else environ
+    if env.get("JAX_COMPILATION_CACHE_DIR") or env.get(NO_CACHE_ENV, "") not in ("", "0"):
+        return None
+    base = env.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "jaxcal" / "jax"
+
+
+def _use_cache(args: argparse.Namespace) -> None:
+    """Point jax's persistent compilation cache at :func:`cache_dir` (a second call of a command
+    then skips most compiling), unless ``--no-cache``, the opt-out variable or the user's own
+    ``JAX_COMPILATION_CACHE_DIR``."""
+    d = None if getattr(args, "no_cache", False) else cache_dir()
+    if d is None:
+        return
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", str(d))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", CACHE_MIN_COMPILE_SECS)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", CACHE_MIN_ENTRY_BYTES)
 
 
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
@@ -58,6 +97,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args = parser.parse_args(argv)
         except SystemExit as e:  # --help / --version
             return int(e.code or 0)
+        _use_cache(args)
         return COMMANDS[args.command].run(args)
     except _bad_input_errors() as e:
         msg = " ".join(str(e).split())
