@@ -22,28 +22,6 @@ def _add_diagnose(p: argparse.ArgumentParser) -> None:
                         "for `jaxcal apply` on new recordings")
 
 
-def _diagnose_with_model(rec, baseline: str, out_dir):
-    """:func:`jaxcal.diagnose.diagnose_recording` (same calls, same report and figures) that also
-    returns the ``diagnosed`` model of the same diagnosis."""
-    from jaxcal import diagnose as diag
-    from jaxcal.diagnose.report import build_report_banded, figures_banded, write_report
-    from jaxcal.methods import CalibrationModel
-    from jaxcal.methods.diagnosed import diagnosed_model_state
-
-    t0 = time.perf_counter()
-    preps, results = diag.diagnose_banded(rec, baseline)
-    rep = build_report_banded(preps, results, baseline, time.perf_counter() - t0)
-    figs = figures_banded(preps, results)
-    write_report(out_dir, rep, figs)
-    if figs:
-        import matplotlib.pyplot as plt
-
-        for f in figs.values():
-            plt.close(f)
-    fitted = diagnosed_model_state(preps, results, baseline, rec)
-    return rep, CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
-
-
 def _run_diagnose(args: argparse.Namespace) -> int:
     from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
 
@@ -56,15 +34,12 @@ def _run_diagnose(args: argparse.Namespace) -> int:
             raise UsageError(str(e).replace("--out", "--model-out", 1)) from None
     rec = load_recording(args.recording)
     t0 = time.perf_counter()
-    model = None
     with _output_dir(args.out) as d:
         try:
             diag.prepare(rec)  # refuse bad input (no reference motion, too short) before any progress line
             print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-            if args.model_out is None:
-                rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d)
-            else:
-                rep, model = _diagnose_with_model(rec, args.baseline, d)
+            rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d, with_model=args.model_out is not None)
+            model = rep.pop("_model", None)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
     if model is not None:

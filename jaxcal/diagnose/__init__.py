@@ -35,6 +35,7 @@ def diagnose_recording(
     pose_sigma: float | None = None,
     with_figures: bool | None = None,
     force: Mapping[str, tuple[str, ...]] | None = None,
+    with_model: bool = False,
 ) -> dict:
     """Diagnose a recording against the baseline sensor model; returns the ``report.json`` dict.
 
@@ -52,6 +53,10 @@ def diagnose_recording(
             report's ``"_figures"`` key when built without ``out_dir``.
         force: per sensor, effects estimated whatever the tests say (``{"acc": ("lever_arm",
             "time_offset")}``; :func:`jaxcal.diagnose.align.align_recording` uses it).
+        with_model: also return, under the report's ``"_model"`` key, the
+            :class:`~jaxcal.methods.CalibrationModel` of method ``diagnosed`` that carries the
+            baseline and the named effects (``jaxcal diagnose --model-out``;
+            :func:`jaxcal.methods.diagnosed.diagnosed_model_state`).
 
     Raises:
         TypeError: ``rec`` is not a :class:`~jaxcal.recording.Recording`.
@@ -73,4 +78,10 @@ def diagnose_recording(
                 plt.close(f)
     elif figs:
         rep["_figures"] = figs
+    if with_model:
+        from jaxcal.methods import CalibrationModel  # imported on use: methods import the diagnose vocabulary
+        from jaxcal.methods.diagnosed import diagnosed_model_state
+
+        fitted = diagnosed_model_state(preps, results, baseline, rec)
+        rep["_model"] = CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
     return rep
