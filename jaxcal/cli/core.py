@@ -7,9 +7,13 @@
     jaxcal simulate dataset2 --out DIR [--seed N] [--labels]
     jaxcal simulate dataset1 --out DIR [--seed N]
     jaxcal import FORMAT FILE... --out REC.npz [--fs HZ] [...]
-    jaxcal diagnose RECORDING --out DIR [--baseline diag|affine]
+    jaxcal import rosbag BAG --imu-topic T [--pose-topic P] --out REC.npz
+    jaxcal diagnose RECORDING --out DIR [--baseline diag|affine] [--model-out MODEL.npz]
+    jaxcal align RECORDING --out DIR
+    jaxcal noise RECORDING --out DIR [--start S --end S]
     jaxcal sweep CONFIG.json --out DIR [--resume]
-    jaxcal export MODEL.npz --format json|c|kalibr|openvins --out FILE [--name NAME]
+    jaxcal export MODEL.npz --format json|c|kalibr|openvins|imucal --out FILE [--name NAME] [--noise IMU_YAML]
+    jaxcal import-model imucal|json|kalibr|openvins FILE --out MODEL.npz [--drop-g-sensitivity]
     jaxcal methods
     jaxcal --version
 
