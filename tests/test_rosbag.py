@@ -19,7 +19,7 @@ import pytest
 
 from jaxcal.cli import main
 from jaxcal.readers import read
-from jaxcal.recording import load_recording
+from jaxcal.recording import Recording, load_recording
 
 rosbags = pytest.importorskip("rosbags")
 from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
@@ -167,6 +167,14 @@ def run(capsys, *argv: Any) -> tuple[int, str]:
     return code, capsys.readouterr().err
 
 
+def _import_imu0(capsys, bag, tmp_path) -> Recording:
+    """``jaxcal import rosbag BAG --imu-topic /imu0``, which must succeed; the recording it wrote."""
+    out = tmp_path / "rec.npz"
+    code, err = run(capsys, "import", "rosbag", bag, "--imu-topic", "/imu0", "--out", out)
+    assert code == 0, err
+    return load_recording(out)
+
+
 def refused(capsys, argv: list, out: Path, *needles: str) -> str:
     """Exit 2, one stderr line holding every needle, nothing written."""
     code, err = run(capsys, *argv)
@@ -188,10 +196,7 @@ def test_imu_round_trip_exact(tmp_path, capsys, kind):
     ts = _typestore(kind)
     bag = write_bag(tmp_path / "b", kind, {"/imu0": ("sensor_msgs/msg/Imu", tr.imu_msgs(ts)),
                                             "/other": ("geometry_msgs/msg/PoseStamped", tr.pose_msgs(ts, "geometry_msgs/msg/PoseStamped"))})
-    out = tmp_path / "rec.npz"
-    code, err = run(capsys, "import", "rosbag", bag, "--imu-topic", "/imu0", "--out", out)
-    assert code == 0, err
-    rec = load_recording(out)
+    rec = _import_imu0(capsys, bag, tmp_path)
     assert rec.acc_unit == "g" and rec.gyr_unit == "rad/s" and rec.n == N
     np.testing.assert_array_equal(rec.t, (tr.ns - tr.ns[0]) / 1e9)  # integer ns difference, one rounding
     # the ns jitter survives: t differs from the 5 ms grid by exactly the jitter written
@@ -211,10 +216,7 @@ def test_compressed_bags(tmp_path, capsys, kind, compress):
     """Compressed bags (ROS1 lz4 / bz2 chunks; ROS2 zstd per file, per message or per MCAP chunk) read the same."""
     tr = Truth(7)
     bag = write_bag(tmp_path / "b", kind, {"/imu0": ("sensor_msgs/msg/Imu", tr.imu_msgs(_typestore(kind)))}, compress)
-    out = tmp_path / "rec.npz"
-    code, err = run(capsys, "import", "rosbag", bag, "--imu-topic", "/imu0", "--out", out)
-    assert code == 0, err
-    rec = load_recording(out)
+    rec = _import_imu0(capsys, bag, tmp_path)
     np.testing.assert_array_equal(rec.t, (tr.ns - tr.ns[0]) / 1e9)
     np.testing.assert_array_equal(rec.acc, tr.acc / G0)
     np.testing.assert_array_equal(rec.gyr, tr.gyr)
@@ -293,17 +295,14 @@ def test_out_of_order_stamps_sorted_and_exact_repeats_dropped(tmp_path, capsys):
     msgs[5], msgs[6] = (msgs[5][0], msgs[6][1]), (msgs[6][0], msgs[5][1])  # stamps 6 then 5, receive order kept
     msgs.insert(11, (msgs[10][0] + 1, msgs[10][1]))  # the same message again
     bag = write_bag(tmp_path / "b", "ros1", {"/imu0": ("sensor_msgs/msg/Imu", msgs)})
-    out = tmp_path / "rec.npz"
-    code, err = run(capsys, "import", "rosbag", bag, "--imu-topic", "/imu0", "--out", out)
-    assert code == 0, err
-    rec = load_recording(out)
+    rec = _import_imu0(capsys, bag, tmp_path)
     np.testing.assert_array_equal(rec.t, (tr.ns - tr.ns[0]) / 1e9)
     np.testing.assert_array_equal(rec.acc, tr.acc / G0)
     # a different message with stamp 10's time
     msgs[11] = (msgs[11][0], imu_msg(ts, int(tr.ns[10]), tr.acc[10] + 1.0, tr.gyr[10]))
     bag2 = write_bag(tmp_path / "c", "ros1", {"/imu0": ("sensor_msgs/msg/Imu", msgs)})
-    refused(capsys, ["import", "rosbag", bag2, "--imu-topic", "/imu0", "--out", out.with_name("x.npz")],
-            out.with_name("x.npz"), "same header stamp", str(int(tr.ns[10])), "--time receive")
+    refused(capsys, ["import", "rosbag", bag2, "--imu-topic", "/imu0", "--out", tmp_path / "x.npz"],
+            tmp_path / "x.npz", "same header stamp", str(int(tr.ns[10])), "--time receive")
 
 
 def test_sensor_marked_absent_is_left_out(tmp_path, capsys):
@@ -311,10 +310,7 @@ def test_sensor_marked_absent_is_left_out(tmp_path, capsys):
     tr = Truth(5)
     ts = _typestore("mcap")
     bag = write_bag(tmp_path / "b", "mcap", {"/imu0": ("sensor_msgs/msg/Imu", tr.imu_msgs(ts, acc_cov0=-1.0))})
-    out = tmp_path / "rec.npz"
-    code, err = run(capsys, "import", "rosbag", bag, "--imu-topic", "/imu0", "--out", out)
-    assert code == 0, err
-    rec = load_recording(out)
+    rec = _import_imu0(capsys, bag, tmp_path)
     assert rec.acc is None and rec.sensors() == ("gyr",)
     np.testing.assert_array_equal(rec.gyr, tr.gyr)
 
