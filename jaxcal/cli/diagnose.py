@@ -38,13 +38,17 @@ def _run_diagnose(args: argparse.Namespace) -> int:
         try:
             diag.prepare(rec)  # refuse bad input (no reference motion, too short) before any progress line
             print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-            rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d, with_model=args.model_out is not None)
-            model = rep.pop("_model", None)
+            rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d, keep_fit=args.model_out is not None)
+            fit = rep.pop("_fit", None)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
-    if model is not None:
+    if fit is not None:
+        from jaxcal.methods import CalibrationModel
+        from jaxcal.methods.diagnosed import diagnosed_model_state
         from jaxcal.model_file import save_model
 
+        fitted = diagnosed_model_state(*fit, args.baseline, rec)
+        model = CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
         save_model(model, args.model_out)
         carried = "; ".join(f"{s}: {', '.join(v) or 'baseline only'}" for s, v in model.meta["effects"].items())
         print(f"{PROG}: wrote {args.model_out} (method diagnosed; {carried})", file=sys.stderr)

@@ -35,7 +35,7 @@ def diagnose_recording(
     pose_sigma: float | None = None,
     with_figures: bool | None = None,
     force: Mapping[str, tuple[str, ...]] | None = None,
-    with_model: bool = False,
+    keep_fit: bool = False,
 ) -> dict:
     """Diagnose a recording against the baseline sensor model; returns the ``report.json`` dict.
 
@@ -53,9 +53,9 @@ def diagnose_recording(
             report's ``"_figures"`` key when built without ``out_dir``.
         force: per sensor, effects estimated whatever the tests say (``{"acc": ("lever_arm",
             "time_offset")}``; :func:`jaxcal.diagnose.align.align_recording` uses it).
-        with_model: also return, under the report's ``"_model"`` key, the
-            :class:`~jaxcal.methods.CalibrationModel` of method ``diagnosed`` that carries the
-            baseline and the named effects (``jaxcal diagnose --model-out``;
+        keep_fit: also return the diagnosis itself, ``(preps, results)`` of
+            :func:`diagnose_banded`, under the report's ``"_fit"`` key (``jaxcal diagnose
+            --model-out`` turns it into a ``diagnosed`` model with
             :func:`jaxcal.methods.diagnosed.diagnosed_model_state`).
 
     Raises:
@@ -78,10 +78,6 @@ def diagnose_recording(
                 plt.close(f)
     elif figs:
         rep["_figures"] = figs
-    if with_model:
-        from jaxcal.methods import CalibrationModel  # imported on use: methods import the diagnose vocabulary
-        from jaxcal.methods.diagnosed import diagnosed_model_state
-
-        fitted = diagnosed_model_state(preps, results, baseline, rec)
-        rep["_model"] = CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
+    if keep_fit:
+        rep["_fit"] = (preps, results)
     return rep
