@@ -34,8 +34,15 @@ in m/s^2 and deg/s; imucal's own ``CalibrationInfo.from_json_file`` reads it.
 
 Imports (:func:`import_model` of a :func:`read_document`): imucal's CalibrationInfo JSON (written by
 imucal or by jaxcal), jaxcal's plain JSON, and the Kalibr / OpenVINS YAML jaxcal writes, each as a
-``linear`` model (forward ``S``, ``b`` per sensor); what a linear model cannot hold (a gyro
-g-sensitivity, a lever arm, another IMU model) is refused with one line.
+``linear`` model (forward ``S``, ``b`` per sensor, and the gyro g-sensitivity ``G`` when the file has a
+non-zero one); what a linear model cannot hold (a lever arm, another IMU model) is refused with one line.
+
+Gyro g-sensitivity: a linear model's gyroscope may hold ``G`` (3x3, (rad/s)/g, ``state/gyr/G``, e.g.
+``jaxcal calibrate --method multipos --g-sensitivity``), applied as ``w = A_g (y_g - b_g) - G f`` with
+``f = A_a (y_a - b_a)`` the calibrated accelerometer (g) of the same sample; its forward model is
+``y_g = S_g (w + G f) + b_g``. Every export writes it in the format's own term: Kalibr's
+``A = S_g G C_gyro_b^T / G0``, OpenVINS's ``Tg = S_g G / G0``, imucal's ``K_ga = S_g G / G0`` (input unit per
+m/s^2), the JSON's ``G`` and the C function's ``acc_cal`` argument; each import reads it back.
 
 Pure functions, no I/O: the ``jaxcal export`` and ``jaxcal import-model`` commands read and write the files.
 """
@@ -57,11 +64,12 @@ from jaxcal import __version__, methods
 from jaxcal.arrays import Array
 from jaxcal.constants import G0, PHYS_UNIT
 from jaxcal.methods import CalibrationModel, ModelError
-from jaxcal.methods.base import MAX_CONDITION, affine_state, apply_linear_state, check_linear_state
+from jaxcal.methods.base import GSENS_KEY, MAX_CONDITION, affine_state, apply_linear_state, check_linear_state, gsens_of
 from jaxcal.sensor import LinearCal
 
 __all__ = [
     "EQUATION",
+    "EQUATION_GSENS",
     "IMPORT_FORMATS",
     "IMUCAL_CONVENTION",
     "IMUCAL_FORMAT_VERSION",
@@ -76,6 +84,7 @@ __all__ = [
     "from_json_export",
     "from_kalibr",
     "from_openvins",
+    "g_sensitivity",
     "import_model",
     "is_linear",
     "linear_cals",
@@ -96,6 +105,9 @@ __all__ = [
 
 EQUATION = "x = A @ (y - b)"
 """The applied form both exports write out (``A`` multiplies the column vector ``y - b``)."""
+
+EQUATION_GSENS = "x_gyr = A_gyr @ (y_gyr - b_gyr) - G @ x_acc"
+"""The gyroscope's applied form when the model has a g-sensitivity ``G`` ((rad/s)/g; ``x_acc`` in g)."""
 
 JSON_FORMAT = "jaxcal-linear-calibration/1"
 """The ``format`` field of :func:`to_json`'s output (name/version of this JSON layout)."""
@@ -138,6 +150,15 @@ def linear_cals(model: CalibrationModel) -> dict[str, LinearCal]:
     return out
 
 
+def g_sensitivity(model: CalibrationModel) -> np.ndarray | None:
+    """The gyroscope g-sensitivity ``G`` (3, 3), (rad/s)/g, of a linear model, or ``None`` when it has none.
+
+    Args:
+        model: a fitted or loaded :class:`~jaxcal.methods.CalibrationModel`.
+    """
+    return gsens_of(model.state) if is_linear(model) else None
+
+
 def _json_safe(v: Any) -> bool:
     """Whether ``v`` is plain, finite JSON (no NaN/inf, no numpy objects)."""
     try:
@@ -158,7 +179,8 @@ def to_json(model: CalibrationModel) -> dict[str, Any]:
     """A plain-JSON description of a linear model (``json.dumps`` it as is).
 
     Layout: ``format`` (:data:`JSON_FORMAT`), ``equation`` (:data:`EQUATION`), ``convention`` (the
-    equation in words), ``method``, ``jaxcal_version``, ``sensors``: ``{sensor: {"A": 3x3 row-major
+    equation in words), with a gyro g-sensitivity also ``equation_gyr`` (:data:`EQUATION_GSENS`),
+    ``convention_gyr`` and ``sensors.gyr.G`` (3x3 rows, ``G_unit`` ``(rad/s)/g``), ``method``, ``jaxcal_version``, ``sensors``: ``{sensor: {"A": 3x3 row-major
     (a list of 3 rows), "b": [3], "input_unit", "output_unit"}}``, and ``meta``: the model's
     metadata entries that are plain finite JSON (others are dropped).
 
@@ -169,6 +191,7 @@ def to_json(model: CalibrationModel) -> dict[str, Any]:
         ModelError: the model is not linear.
     """
     cals = linear_cals(model)
+    G = g_sensitivity(model)
     sensors = {}
     for s, cal in cals.items():
         unit_in, unit_out = _units(model, s)
@@ -178,6 +201,14 @@ def to_json(model: CalibrationModel) -> dict[str, Any]:
             "input_unit": unit_in,
             "output_unit": unit_out,
         }
+    gs = {}
+    if G is not None:
+        sensors["gyr"]["G"] = _rows(G)
+        sensors["gyr"]["G_unit"] = "(rad/s)/g"
+        gs = {"equation_gyr": EQUATION_GSENS,
+              "convention_gyr": "the gyroscope has a g-sensitivity G (3x3, rows listed first, (rad/s)/g): its "
+              "calibrated sample is A (y - b) - G x_acc, x_acc the calibrated accelerometer sample (g) of the same "
+              "instant (forward model y = S (x + G x_acc) + b)."}
     return {
         "format": JSON_FORMAT,
         "equation": EQUATION,
@@ -185,6 +216,7 @@ def to_json(model: CalibrationModel) -> dict[str, Any]:
         "first; A (3x3, rows listed first: A[i][j] is row i, column j) multiplies the column vector y - b from "
         "the left; x is the calibrated sample in output_unit. A is the inverse of the forward model's S in "
         "y = S x + b.",
+        **gs,
         "method": model.method,
         "jaxcal_version": __version__,
         "sensors": sensors,
@@ -223,6 +255,7 @@ def to_c_header(model: CalibrationModel, name: str = "jaxcal_cal") -> str:
     if not _C_NAME.match(name):
         raise ValueError(f"C name {name!r} is not an identifier (letters, digits, '_'; not starting with a digit)")
     cals = linear_cals(model)
+    G = g_sensitivity(model)
     guard = f"{name.upper()}_H"
     lines = [
         f"/* {name}.h: IMU calibration exported by jaxcal {_c_comment(__version__)} "
@@ -238,8 +271,13 @@ def to_c_header(model: CalibrationModel, name: str = "jaxcal_cal") -> str:
     ]
     for s in cals:
         unit_in, unit_out = _units(model, s)
-        lines.append(f" *   {s}: input {_c_comment(unit_in or 'unit not recorded')}, output {unit_out}; "
-                     f"{name}_apply_{s}(y, x)")
+        call = f"{name}_apply_{s}(y, acc_cal, x)" if (s == "gyr" and G is not None) else f"{name}_apply_{s}(y, x)"
+        lines.append(f" *   {s}: input {_c_comment(unit_in or 'unit not recorded')}, output {unit_out}; {call}")
+    if G is not None:
+        lines += [" *",
+                  f" * The gyroscope has a g-sensitivity G ((rad/s)/g):  {EQUATION_GSENS}",
+                  f" *   x_acc: the calibrated accelerometer sample (g) of the same instant ({name}_apply_acc's output),",
+                  f" *   passed as acc_cal; G = {name}_gyr_G[3][3], rows first."]
     lines += [" */", f"#ifndef {guard}", f"#define {guard}", ""]
     for s, cal in cals.items():
         rows = ",\n".join("    {" + ", ".join(_c_double(v) for v in row) + "}" for row in cal.A)
@@ -247,6 +285,30 @@ def to_c_header(model: CalibrationModel, name: str = "jaxcal_cal") -> str:
             f"static const double {name}_{s}_A[3][3] = {{\n{rows}\n}};",
             f"static const double {name}_{s}_b[3] = {{{', '.join(_c_double(v) for v in cal.b)}}};",
             "",
+        ]
+        if s == "gyr" and G is not None:
+            grows = ",\n".join("    {" + ", ".join(_c_double(v) for v in row) + "}" for row in G)
+            lines += [
+                f"static const double {name}_gyr_G[3][3] = {{\n{grows}\n}};",
+                "",
+                "/* x = A (y - b) - G acc_cal for the gyr sensor (acc_cal: calibrated accelerometer, g); any of",
+                " * y, acc_cal, x may be the same array. */",
+                f"static inline void {name}_apply_gyr(const double y[3], const double acc_cal[3], double x[3])",
+                "{",
+                f"    const double d0 = y[0] - {name}_gyr_b[0];",
+                f"    const double d1 = y[1] - {name}_gyr_b[1];",
+                f"    const double d2 = y[2] - {name}_gyr_b[2];",
+                "    const double f0 = acc_cal[0], f1 = acc_cal[1], f2 = acc_cal[2];",
+                "    int i;",
+                "    for (i = 0; i < 3; ++i) {",
+                f"        x[i] = ({name}_gyr_A[i][0] * d0 + {name}_gyr_A[i][1] * d1 + {name}_gyr_A[i][2] * d2)",
+                f"             - ({name}_gyr_G[i][0] * f0 + {name}_gyr_G[i][1] * f1 + {name}_gyr_G[i][2] * f2);",
+                "    }",
+                "}",
+                "",
+            ]
+            continue
+        lines += [
             f"/* x = A (y - b) for the {s} sensor; y and x may be the same array. */",
             f"static inline void {name}_apply_{s}(const double y[3], double x[3])",
             "{",
@@ -273,7 +335,11 @@ addAccelerometerErrorTerms / addGyroscopeErrorTerms), forward model with lever a
   omega = M_g @ (C_gyro_i @ C_i_b @ w_b) + A @ (C_gyro_i @ C_i_b @ a_b) + b_g
 so the calibrated samples are
   a_b = C_i_b.T @ inv(M_a) @ (alpha - b_a)                 [m/s^2]
-  w_b = C_i_b.T @ C_gyro_i.T @ inv(M_g) @ (omega - b_g)     [rad/s]   (A = 0: jaxcal fits no g-sensitivity)
+  w_b = C_i_b.T @ C_gyro_i.T @ inv(M_g) @ (omega - b_g - A @ C_gyro_i @ C_i_b @ a_b)     [rad/s]
+a_b: the specific force in the body frame, m/s^2 (Kalibr: C_b_w (a_w - g_w)); applied, the calibrated a_b above.
+A (gyroscopes.A, g-sensitivity, input unit per m/s^2) = S_g @ G @ (C_gyro_i @ C_i_b).T / 9.80665 for a jaxcal
+model y_g = S_g (w_b + G f) + b_g with g-sensitivity G ((rad/s)/g, f = a_b / 9.80665, S_g = M_g C_gyro_i C_i_b);
+0 when the model has none.
 M_a, M_g: lower triangular (accelerometers.M, gyroscopes.M); C_gyro_i: rotation (gyroscopes.C_gyro_i);
 C_i_b: rotation block of T_i_b (translation 0), from jaxcal's calibrated frame b to Kalibr's IMU frame i,
 whose axes Kalibr ties to the accelerometer (lower-triangular M_a). alpha, omega: raw samples in the
@@ -287,7 +353,9 @@ R_IMUtoACC, Tg and sets Dw = inv(Tw), Da = inv(Ta), R_GYROtoIMU = R_IMUtoGYRO.T,
 (ov_msckf VioManagerOptions.h); the corrected samples are (ov_msckf Propagator.cpp, docs.openvins.com
 propagation_analytical):
   a_I = R_ACCtoIMU @ Da @ (a_m - b_a)                  [m/s^2]
-  w_I = R_GYROtoIMU @ Dw @ (w_m - b_g - Tg @ a_I)      [rad/s]   (Tg = 0: jaxcal fits no g-sensitivity)
+  w_I = R_GYROtoIMU @ Dw @ (w_m - b_g - Tg @ a_I)      [rad/s]
+Tg (input unit per m/s^2) = S_g @ G / 9.80665 for a jaxcal model y_g = S_g (w + G f) + b_g with g-sensitivity G
+((rad/s)/g, f = a_I / 9.80665, S_g = Tw R_IMUtoGYRO); 0 when the model has none.
 Tw, Ta: lower triangular (the "kalibr" model keeps the lower triangle of Dw, Da); I: jaxcal's calibrated
 frame (T_i_b identity, time_offset 0). a_m, w_m: raw samples in the model's input unit
 (jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (OpenVINS stores no constant
@@ -389,10 +457,22 @@ def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = No
         "model": "scale-misalignment",
         "T_i_b": _rows(T_i_b),
         "accelerometers": {"M": _rows(M_a)},
-        "gyroscopes": {"M": _rows(M_g), "A": _rows(np.zeros((3, 3))), "C_gyro_i": _rows(C_gyro_i)},
+        "gyroscopes": {"M": _rows(M_g), "A": _rows(_kalibr_A(model, S_g, C_gyro_i @ C_i_b)), "C_gyro_i": _rows(C_gyro_i)},
         **_jaxcal_fields(model, cals),
     }
     return {"imu0": _ordered(_merge(imu, imu_fields), KALIBR_KEYS)}
+
+
+def _kalibr_A(model: CalibrationModel, S_g: np.ndarray, C_gyro_b: np.ndarray) -> np.ndarray:
+    """Kalibr's gyro g-sensitivity ``A = S_g G C_gyro_b^T / G0`` (input unit per m/s^2; zero without ``G``)."""
+    G = g_sensitivity(model)
+    return np.zeros((3, 3)) if G is None else S_g @ G @ C_gyro_b.T / G0
+
+
+def _tg(model: CalibrationModel, S_g: np.ndarray) -> np.ndarray:
+    """OpenVINS's ``Tg`` / imucal's ``K_ga``: ``S_g G / G0`` (input unit per m/s^2; zero without ``G``)."""
+    G = g_sensitivity(model)
+    return np.zeros((3, 3)) if G is None else S_g @ G / G0
 
 
 def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -427,7 +507,7 @@ def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = 
         "R_IMUtoGYRO": _rows(R_IMUtoGYRO),
         "Ta": _rows(Ta),
         "R_IMUtoACC": _rows(R_IMUtoACC),
-        "Tg": _rows(np.zeros((3, 3))),
+        "Tg": _rows(_tg(model, np.linalg.inv(cals["gyr"].A))),
         **_jaxcal_fields(model, cals),
     }
     return {"imu0": _ordered(_merge(imu, imu_fields), OPENVINS_KEYS)}
@@ -587,7 +667,9 @@ IMUCAL_CONVENTION = (
     "acc_raw, gyr_raw, b_a, b_g in from_acc_unit, from_gyr_unit. Matrices are lists of rows. "
     "K_a @ R_a and K_g @ R_g are the forward matrices S of raw = S x + b (raw per output unit); "
     "K = diag(row norms of S) is the scale, R = inv(K) @ S the misalignment, rows of unit norm, as imucal's "
-    "Ferraris fit normalises them. K_ga = 0: jaxcal fits no g-sensitivity."
+    "Ferraris fit normalises them. K_ga (from_gyr_unit per m/s^2; acc the calibrated acc in m/s^2) = "
+    "S_g @ G / 9.80665 for a jaxcal gyro y_g = S_g (w + G f) + b_g (S_g raw per rad/s, g-sensitivity G in (rad/s)/g, "
+    "f = acc / 9.80665); 0 when the model has none."
 )
 """The convention written into the ``comment`` field of :func:`to_imucal`'s JSON (imucal's
 ``from_json`` accepts no extra keys, so the convention lives in its one free-text field)."""
@@ -660,7 +742,7 @@ def to_imucal(model: CalibrationModel) -> dict[str, Any]:
         **paras["acc"],
         "K_g": paras["gyr"]["K_g"],
         "R_g": paras["gyr"]["R_g"],
-        "K_ga": _rows(np.zeros((3, 3))),
+        "K_ga": _rows(_tg(model, _forward(model, "gyr")[0])),
         "b_g": paras["gyr"]["b_g"],
         "cal_type": "Ferraris",
         "_format_version": IMUCAL_FORMAT_VERSION,
@@ -677,7 +759,8 @@ class Imported(NamedTuple):
     """What :func:`import_model` returns.
 
     Args:
-        model: a ``linear`` :class:`~jaxcal.methods.CalibrationModel` (forward ``S``, ``b`` per sensor).
+        model: a ``linear`` :class:`~jaxcal.methods.CalibrationModel` (forward ``S``, ``b`` per sensor,
+            and the gyro g-sensitivity ``G`` when the file has one).
         notes: one-line remarks on what the import assumed or dropped (e.g. a bias the file lacks).
     """
 
@@ -733,21 +816,24 @@ def _inv(M: np.ndarray, what: str, where: str) -> np.ndarray:
     return np.linalg.inv(M)
 
 
-def _g_sensitivity(G: np.ndarray, name: str, where: str, drop: bool, notes: list[str]) -> None:
-    """Refuse a non-zero gyro g-sensitivity matrix, or drop it (with a note) when ``drop``."""
-    if not np.any(G):
-        return
-    size = f"max |{name}| = {float(np.max(np.abs(G))):.3g}"
-    if not drop:
-        raise ModelError(f"{where}: non-zero gyroscope g-sensitivity {name} ({size}); a jaxcal linear model has "
-                         "none, so it cannot be imported as is (drop it with --drop-g-sensitivity)")
-    notes.append(f"dropped the gyroscope g-sensitivity {name} ({size})")
+def _g_sensitivity(M: np.ndarray, name: str, where: str, drop: bool, notes: list[str]) -> bool:
+    """Whether to import a gyro g-sensitivity matrix ``M``: ``False`` when it is zero, or non-zero and
+    dropped (``drop``, with a note)."""
+    if not np.any(M):
+        return False
+    if drop:
+        notes.append(f"dropped the gyroscope g-sensitivity {name} (max |{name}| = {float(np.max(np.abs(M))):.3g})")
+        return False
+    return True
 
 
 def _linear_model(fwd: Mapping[str, tuple[np.ndarray, np.ndarray]], units: Mapping[str, str],
-                  source: Mapping[str, Any]) -> CalibrationModel:
-    """A ``linear`` model from forward ``(S, b)`` per sensor (jaxcal units), checked as ``load_model`` would."""
+                  source: Mapping[str, Any], G: np.ndarray | None = None) -> CalibrationModel:
+    """A ``linear`` model from forward ``(S, b)`` per sensor (jaxcal units) and an optional gyro
+    g-sensitivity ``G`` ((rad/s)/g), checked as ``load_model`` would."""
     state = {s: {"S": np.asarray(S, np.float64), "b": np.asarray(b, np.float64)} for s, (S, b) in fwd.items()}
+    if G is not None:
+        state["gyr"][GSENS_KEY] = np.asarray(G, np.float64)
     meta = {"units": dict(units), "imported_from": dict(source)}
     check_linear_state(state, meta, tuple(state))
     return CalibrationModel("linear", tuple(state), state, meta)
@@ -770,15 +856,16 @@ def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     ``gyr_unit``: m/s^2 or g, deg/s or rad/s) becomes jaxcal's ``S`` (raw per g, raw per rad/s). A raw
     input unit (``from_acc_unit`` / ``from_gyr_unit``) that is physical (m/s^2, g; deg/s, rad/s) becomes
     jaxcal's ``g`` / ``rad/s`` (``S`` and ``b`` rescaled); any other (``a.u.``, ``LSB``, none) is raw
-    (``LSB``). A non-zero ``K_ga`` is refused unless ``drop_g_sensitivity``.
+    (``LSB``). A non-zero ``K_ga`` becomes the gyro g-sensitivity ``G = G0 S_g^{-1} K_ga`` ((rad/s)/g,
+    with ``K_ga`` in jaxcal's input unit per m/s^2), unless ``drop_g_sensitivity``.
 
     Args:
         doc: the parsed JSON (:func:`read_document`).
-        drop_g_sensitivity: import a non-zero ``K_ga`` as zero (with a note) instead of refusing.
+        drop_g_sensitivity: import a non-zero ``K_ga`` as zero (with a note).
 
     Raises:
         ModelError: not an imucal Ferraris/Turntable CalibrationInfo of format 2.0.0, a missing or
-            malformed matrix, an output unit jaxcal does not know, or a non-zero ``K_ga`` (one line).
+            malformed matrix, or an output unit jaxcal does not know (one line).
     """
     where = "imucal CalibrationInfo"
     if not isinstance(doc, Mapping) or "cal_type" not in doc:
@@ -800,9 +887,14 @@ def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
         b = _matrix(doc, f"b_{tag}", (3,), where)
         units[s], per_in = _input_unit(s, doc.get(f"from_{s}_unit"), f"from_{s}_unit", notes)
         fwd[s] = (K @ R * (_PER_JAXCAL_UNIT[s][out_unit] / per_in), b / per_in)
-    _g_sensitivity(_matrix(doc, "K_ga", (3, 3), where), "K_ga", where, drop_g_sensitivity, notes)
+    K_ga = _matrix(doc, "K_ga", (3, 3), where)
+    G = None
+    if _g_sensitivity(K_ga, "K_ga", where, drop_g_sensitivity, notes):
+        # raw_file = K R gyr + K_ga acc_ms2 + b; jaxcal's input is raw_file / per_in and acc_ms2 = G0 f
+        per_in = _input_unit("gyr", doc.get("from_gyr_unit"), "from_gyr_unit", [])[1]
+        G = G0 * _inv(fwd["gyr"][0], "K_g R_g", where) @ K_ga / per_in
     source = {"format": "imucal", "cal_type": doc["cal_type"], "notes": notes}
-    return Imported(_linear_model(fwd, units, source), tuple(notes))
+    return Imported(_linear_model(fwd, units, source, G), tuple(notes))
 
 
 def from_json_export(doc: Any) -> Imported:
@@ -837,8 +929,13 @@ def from_json_export(doc: Any) -> Imported:
             unit = "LSB"
         fwd[s] = (_inv(A, "A", f"{where} {s}"), b)
         units[s] = unit
+    G = None
+    if isinstance(sensors.get("gyr"), Mapping) and "G" in sensors["gyr"]:
+        G = _matrix(sensors["gyr"], "G", (3, 3), f"{where} gyr")
+        if "acc" not in fwd:
+            raise ModelError(f"{where} gyr: a g-sensitivity G is applied with the calibrated accelerometer, but the file has no acc")
     source = {"format": "json", "method": doc.get("method"), "notes": notes}
-    return Imported(_linear_model(fwd, units, source), tuple(notes))
+    return Imported(_linear_model(fwd, units, source, G), tuple(notes))
 
 
 def _imu0(doc: Any, where: str) -> Mapping[str, Any]:
@@ -871,12 +968,12 @@ def from_kalibr(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     Kalibr's forward model (:data:`KALIBR_CONVENTION`) gives jaxcal's forward matrices
     ``S_a = G0 M_a C_i_b`` (raw per g) and ``S_g = M_g C_gyro_i C_i_b`` (raw per rad/s). The bias and
     input units come from the ``jaxcal_*`` keys (absent: bias 0, raw input, with a note). Refused: a
-    model other than ``scale-misalignment``, a ``T_i_b`` translation (a lever arm), a non-zero ``A``
-    (unless ``drop_g_sensitivity``).
+    model other than ``scale-misalignment``, a ``T_i_b`` translation (a lever arm). A non-zero ``A``
+    becomes the gyro g-sensitivity ``G = G0 S_g^{-1} A C_gyro_i C_i_b`` ((rad/s)/g), unless ``drop_g_sensitivity``.
 
     Args:
         doc: the parsed YAML.
-        drop_g_sensitivity: import a non-zero ``A`` as zero (with a note) instead of refusing.
+        drop_g_sensitivity: import a non-zero ``A`` as zero (with a note).
 
     Raises:
         ModelError: what jaxcal's linear model cannot hold, or a malformed file (one line).
@@ -896,11 +993,13 @@ def from_kalibr(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     M_g = _matrix(imu.get("gyroscopes"), "M", (3, 3), f"{where} gyroscopes")
     C_gyro_i = _matrix(imu.get("gyroscopes"), "C_gyro_i", (3, 3), f"{where} gyroscopes")
     notes: list[str] = []
-    _g_sensitivity(_matrix(imu.get("gyroscopes"), "A", (3, 3), f"{where} gyroscopes"), "A", where,
-                   drop_g_sensitivity, notes)
+    A = _matrix(imu.get("gyroscopes"), "A", (3, 3), f"{where} gyroscopes")
+    keep = _g_sensitivity(A, "A", where, drop_g_sensitivity, notes)
     bias, units = _yaml_bias_units(imu, where, notes)
-    fwd = {"acc": (G0 * (M_a @ C_i_b), bias["acc"]), "gyr": (M_g @ C_gyro_i @ C_i_b, bias["gyr"])}
-    return Imported(_linear_model(fwd, units, {"format": "kalibr", "notes": notes}), tuple(notes))
+    S_g = M_g @ C_gyro_i @ C_i_b
+    fwd = {"acc": (G0 * (M_a @ C_i_b), bias["acc"]), "gyr": (S_g, bias["gyr"])}
+    G = G0 * _inv(S_g, "M_g C_gyro_i C_i_b", where) @ A @ C_gyro_i @ C_i_b if keep else None
+    return Imported(_linear_model(fwd, units, {"format": "kalibr", "notes": notes}, G), tuple(notes))
 
 
 def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
@@ -911,12 +1010,12 @@ def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     ``S_a = G0 (R_IMUtoACC^T Da)^{-1}`` and ``S_g = (R_IMUtoGYRO^T Dw)^{-1}``. Bias and input units
     from the ``jaxcal_*`` keys (absent: bias 0, raw input, with a note). ``T_i_b`` is not read
     (OpenVINS does not apply it to the IMU). Refused: a model other than ``kalibr`` / ``calibrated``
-    (OpenVINS's ``rpng`` model keeps other triangles), ``Tw`` or ``Ta`` not lower triangular, a
-    non-zero ``Tg`` (unless ``drop_g_sensitivity``).
+    (OpenVINS's ``rpng`` model keeps other triangles), ``Tw`` or ``Ta`` not lower triangular. A non-zero
+    ``Tg`` becomes the gyro g-sensitivity ``G = G0 S_g^{-1} Tg`` ((rad/s)/g), unless ``drop_g_sensitivity``.
 
     Args:
         doc: the parsed YAML.
-        drop_g_sensitivity: import a non-zero ``Tg`` as zero (with a note) instead of refusing.
+        drop_g_sensitivity: import a non-zero ``Tg`` as zero (with a note).
 
     Raises:
         ModelError: what jaxcal's linear model cannot hold, or a malformed file (one line).
@@ -934,13 +1033,14 @@ def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
         if np.any(np.triu(mats[key], 1)):
             raise ModelError(f"{where}: {key} is not lower triangular (OpenVINS's kalibr model keeps only the lower "
                              f"triangle of its inverse, so this file does not mean what it says)")
-    _g_sensitivity(mats["Tg"], "Tg", where, drop_g_sensitivity, notes)
+    keep = _g_sensitivity(mats["Tg"], "Tg", where, drop_g_sensitivity, notes)
     bias, units = _yaml_bias_units(imu, where, notes)
     Da, Dw = np.tril(_inv(mats["Ta"], "Ta", where)), np.tril(_inv(mats["Tw"], "Tw", where))
     S_a = G0 * _inv(mats["R_IMUtoACC"].T @ Da, "R_IMUtoACC^T Da", where)
     S_g = _inv(mats["R_IMUtoGYRO"].T @ Dw, "R_IMUtoGYRO^T Dw", where)
     fwd = {"acc": (S_a, bias["acc"]), "gyr": (S_g, bias["gyr"])}
-    return Imported(_linear_model(fwd, units, {"format": "openvins", "notes": notes}), tuple(notes))
+    G = G0 * _inv(S_g, "R_IMUtoGYRO^T Dw", where) @ mats["Tg"] if keep else None
+    return Imported(_linear_model(fwd, units, {"format": "openvins", "notes": notes}, G), tuple(notes))
 
 
 def import_model(fmt: str, doc: Any, drop_g_sensitivity: bool = False) -> Imported:
@@ -950,7 +1050,7 @@ def import_model(fmt: str, doc: Any, drop_g_sensitivity: bool = False) -> Import
         fmt: ``imucal``, ``json``, ``kalibr`` or ``openvins``.
         doc: the parsed document (:func:`read_document`).
         drop_g_sensitivity: import a gyro g-sensitivity (imucal ``K_ga``, Kalibr ``A``, OpenVINS ``Tg``)
-            as zero instead of refusing (not used by ``json``, which has none).
+            as zero instead of into ``state/gyr/G`` (not used by ``json``).
 
     Raises:
         ModelError: unknown format, or what the format's reader refuses (one line).

@@ -137,7 +137,7 @@ def _add_import_model(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="MODEL", help="model file to write (.npz), method linear")
     p.add_argument("--drop-g-sensitivity", action="store_true",
                    help="import a gyroscope g-sensitivity (imucal K_ga, Kalibr A, OpenVINS Tg) as zero instead of "
-                   "refusing the file (a jaxcal linear model has none)")
+                   "into the model's state/gyr/G (which `jaxcal apply` applies with the calibrated accelerometer)")
 
 
 def _run_import_model(args: argparse.Namespace) -> int:
@@ -159,6 +159,8 @@ def _run_import_model(args: argparse.Namespace) -> int:
     save_model(model, args.out)
     notes = "".join(f"; {n}" for n in imported.notes)
     units = ", ".join(f"{s} {model.meta['units'][s]}" for s in model.sensors)
+    if export.g_sensitivity(model) is not None:
+        notes += "; with the gyroscope g-sensitivity (state/gyr/G)"
     print(f"{PROG}: wrote {args.out} (linear model from {args.format} {args.file}; input units {units}){notes}",
           file=sys.stderr)
     return 0
@@ -172,8 +174,8 @@ register_command(
         _run_import_model,
         "Read FILE, a calibration in FORMAT (imucal: imucal's FerrarisCalibrationInfo JSON, written by imucal or "
         "jaxcal; json: jaxcal's plain JSON export; kalibr, openvins: the YAML jaxcal exports), and write it as a "
-        "jaxcal model of method linear that `jaxcal apply` uses. What a linear model cannot hold (a gyroscope "
-        "g-sensitivity unless --drop-g-sensitivity, a lever arm, another IMU model) is refused with one line; "
-        "assumptions (a bias or unit the file lacks) are printed.",
+        "jaxcal model of method linear that `jaxcal apply` uses; a non-zero gyroscope g-sensitivity becomes its "
+        "state/gyr/G (unless --drop-g-sensitivity). What a linear model cannot hold (a lever arm, another IMU "
+        "model) is refused with one line; assumptions (a bias or unit the file lacks) are printed.",
     ),
 )

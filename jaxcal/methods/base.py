@@ -44,6 +44,7 @@ __all__ = [
     "ApplyFn",
     "CheckFn",
     "FitFn",
+    "GSENS_KEY",
     "Fitted",
     "Log",
     "Method",
@@ -51,6 +52,7 @@ __all__ = [
     "affine_state",
     "apply_linear_state",
     "check_linear_state",
+    "gsens_of",
     "holdout_mask",
     "labelled_sensors",
     "linear_state",
@@ -331,6 +333,9 @@ def _check_rotation(rec: Recording, method: str) -> None:
 
 # ----------------------------------------------------------------------------- linear states
 
+GSENS_KEY = "G"
+"""The optional key of a linear gyroscope state holding its g-sensitivity ``G`` (3, 3), (rad/s)/g."""
+
 MAX_CONDITION = 1e10  # a calibration matrix worse conditioned than this is singular for our purposes
 
 
@@ -351,7 +356,9 @@ def affine_state(p: Mapping[str, Any]) -> Affine:
 def check_linear_state(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str, ...]) -> None:
     """:data:`CheckFn` of the linear methods: each sensor's state is an affine ``S`` (3, 3) and
     ``b`` (3,), finite, with an invertible, reasonably conditioned ``S`` (it is inverted to
-    calibrate).
+    calibrate). The gyroscope may also hold its g-sensitivity ``G`` (3, 3), finite, in
+    (rad/s)/g (:data:`GSENS_KEY`); it is applied with the calibrated accelerometer, so a model
+    with ``G`` must also calibrate ``acc``.
 
     Args:
         state: the loaded state (nested dicts of numpy arrays).
@@ -369,22 +376,62 @@ def check_linear_state(state: Mapping[str, Any], meta: Mapping[str, Any], sensor
         if not np.isfinite(cond) or cond > MAX_CONDITION:
             raise ModelError(f"state/{s}/S is singular (condition number {cond:.3g}); the model cannot be "
                              "inverted to calibrate")
+        if GSENS_KEY in p:
+            if s != "gyr":
+                raise ModelError(f"state/{s}/{GSENS_KEY}: only the gyroscope has a g-sensitivity")
+            if np.shape(p[GSENS_KEY]) != (3, 3):
+                raise ModelError(f"state/gyr/{GSENS_KEY} has shape {np.shape(p[GSENS_KEY])}, expected (3, 3)")
+            if not np.all(np.isfinite(np.asarray(p[GSENS_KEY], np.float64))):
+                raise ModelError(f"state/gyr/{GSENS_KEY} has a non-finite value")
+            if "acc" not in sensors:
+                raise ModelError(f"state/gyr/{GSENS_KEY} (g-sensitivity) is applied with the calibrated accelerometer, "
+                                 "but the model has no 'acc' calibration")
+
+
+def gsens_of(state: Mapping[str, Any]) -> np.ndarray | None:
+    """The gyroscope g-sensitivity ``G`` (3, 3) ((rad/s)/g, float64) of a linear state, or ``None``.
+
+    Args:
+        state: a linear state (``sensor -> {"S", "b"[, "G"]}``).
+    """
+    p = state.get("gyr")
+    if isinstance(p, Mapping) and GSENS_KEY in p:
+        return np.asarray(p[GSENS_KEY], np.float64)
+    return None
 
 
 def apply_linear_state(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> dict[str, np.ndarray]:
     """:data:`ApplyFn` of the linear methods: ``x = A (y - b)`` with
-    ``A = S^{-1}`` (:meth:`~jaxcal.sensor.LinearCal.from_forward`, eq. 3.5), in float64.
+    ``A = S^{-1}`` (:meth:`~jaxcal.sensor.LinearCal.from_forward`, eq. 3.5), in float64. A gyroscope
+    with a g-sensitivity ``G`` (``state/gyr/G``, (rad/s)/g) is calibrated as
+    ``w = A_g (y_g - b_g) - G f`` with ``f = A_a (y_a - b_a)`` the calibrated accelerometer (g) of the
+    same sample: the exact inverse of the forward model ``y_g = S_g (w + G f) + b_g`` that
+    :mod:`jaxcal.multipos` fits (:func:`jaxcal.multipos.gyro.block_rotvecs`).
 
     Args:
-        state: ``sensor -> {"S", "b"}`` (the forward model of each sensor).
+        state: ``sensor -> {"S", "b"[, "G"]}`` (the forward model of each sensor).
         meta: the model's metadata (unused).
         rec: the recording to calibrate.
+
+    Raises:
+        ModelError: the model has ``G`` and the recording (or the model) has no accelerometer.
     """
     out = {}
     with jax.enable_x64(True):
-        for s, p in state.items():
+        for s in SENSORS:
+            p = state.get(s)
             y = getattr(rec, s)
-            if y is not None:
-                cal = LinearCal.from_forward(affine_state(p))
-                out[f"{s}_cal"] = np.asarray(cal.apply(jnp.asarray(y, jnp.float64)))
+            if p is None or y is None:
+                continue
+            cal = LinearCal.from_forward(affine_state(p))
+            out[f"{s}_cal"] = np.asarray(cal.apply(jnp.asarray(y, jnp.float64)))
+        G = gsens_of(state)
+        if G is not None and "gyr_cal" in out:
+            if rec.acc is None:
+                raise ModelError("the gyroscope's g-sensitivity (state/gyr/G) needs the recording's 'acc' channel, "
+                                 "which this recording lacks")
+            if "acc_cal" not in out:
+                raise ModelError("the gyroscope's g-sensitivity (state/gyr/G) needs the model's 'acc' calibration, "
+                                 "which it lacks")
+            out["gyr_cal"] = out["gyr_cal"] - out["acc_cal"] @ G.T
     return out

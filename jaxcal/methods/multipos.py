@@ -1,6 +1,9 @@
 """Method ``multipos``: static poses joined by rotations (Tedaldi et al. 2014,
 :func:`jaxcal.multipos.fit_multipos_recording`); no labels, no datasheet values. Stored and
-applied as the linear methods are."""
+applied as the linear methods are; with ``g_sensitivity`` (``--g-sensitivity``) the gyroscope's
+state also holds its g-sensitivity ``G`` ((rad/s)/g, ``state/gyr/G``), applied as
+``w = A_g (y_g - b_g) - G f`` with the calibrated accelerometer ``f``
+(:func:`~jaxcal.methods.base.apply_linear_state`)."""
 
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import numpy as np
 
 from jaxcal.constants import SENSORS
 from jaxcal.methods.base import (
+    GSENS_KEY,
     Fitted,
     Log,
     Method,
@@ -23,6 +27,7 @@ from jaxcal.methods.base import (
     units,
 )
 from jaxcal.multipos import DatasheetPrior, DetectOptions, MultiposConfig, detect_and_fit, fit_multipos_recording, leave_poses_out, prepare
+from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
 __all__ = ["METHOD", "MultiposOptions", "detect_options", "fit", "heldout", "multipos_config"]
@@ -46,6 +51,8 @@ class MultiposOptions(NamedTuple):
             10 % of the recording, at most 30 s.
         min_rest: shortest rest (pose) kept, seconds.
         rest_window: moving-variance window of the rest detector, seconds.
+        g_sensitivity: also fit the gyroscope's g-sensitivity ``G`` ((rad/s)/g; stored as
+            ``state/gyr/G``, applied with the calibrated accelerometer).
     """
 
     turns: tuple[tuple[float, float], ...] | None = None
@@ -58,6 +65,7 @@ class MultiposOptions(NamedTuple):
     init_duration: float | None = None
     min_rest: float = 1.0
     rest_window: float = 1.0
+    g_sensitivity: bool = False
 
 
 def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
@@ -84,7 +92,8 @@ def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
                 raise ModelError(f"multipos --datasheet-prior needs '{key}' in the recording metadata")
             per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
         prior = DatasheetPrior(per["acc"], per["gyr"], float(options.prior_scale), float(options.prior_cross))
-    return MultiposConfig(acc_model=options.acc_model, gyro_bias=options.gyro_bias, prior=prior)
+    return MultiposConfig(acc_model=options.acc_model, gyro_bias=options.gyro_bias, prior=prior,
+                          g_sensitivity=bool(options.g_sensitivity))
 
 
 def detect_options(rec: Recording, options: MultiposOptions) -> DetectOptions:
@@ -109,6 +118,11 @@ def _say_quality(q: dict, log: Log) -> None:
         log(f"multipos --partial: {s}: {what}")
 
 
+def _g_rows(G: np.ndarray) -> str:
+    """``G`` ((rad/s)/g) in (deg/s)/g, row by row."""
+    return "; ".join("[" + ", ".join(f"{v:+.4f}" for v in row) + "]" for row in np.degrees(np.asarray(G, np.float64)))
+
+
 def fit(rec: Recording, options: MultiposOptions, log: Log) -> Fitted:
     """Detect the static poses, fit both sensors and check that the poses determine the fit.
 
@@ -121,17 +135,27 @@ def fit(rec: Recording, options: MultiposOptions, log: Log) -> Fitted:
     # No progress line before the fit: its refusals (poses that determine too little, turns the
     # data contradict) come from the fit itself and must stay the only line on stderr.
     t0 = time.perf_counter()
+    gsens = None
     try:
-        acc_cal, gyr_cal, q = fit_multipos_recording(rec, multipos_config(rec, options), detect=detect_options(rec, options),
-                                                     turn_times=options.turns, partial=options.partial, summary=True)
+        if options.g_sensitivity:
+            acc_cal, gyr_cal, gsens, q = fit_multipos_recording_gsens(
+                rec, multipos_config(rec, options), detect=detect_options(rec, options), turn_times=options.turns,
+                partial=options.partial)
+        else:
+            acc_cal, gyr_cal, q = fit_multipos_recording(rec, multipos_config(rec, options), detect=detect_options(rec, options),
+                                                         turn_times=options.turns, partial=options.partial, summary=True)
     except ValueError as e:
         raise ModelError(f"multipos: {e}") from None
     elapsed = time.perf_counter() - t0
-    state = {s: linear_state(c) for s, c in zip(SENSORS, (acc_cal, gyr_cal)) if c is not None}
+    state: dict[str, Any] = {s: linear_state(c) for s, c in zip(SENSORS, (acc_cal, gyr_cal)) if c is not None}
+    if gsens is not None and "gyr" in state:
+        state["gyr"] = {**state["gyr"]._asdict(), GSENS_KEY: np.asarray(gsens, np.float64)}
     if not state:
         raise ModelError("multipos: no sensor could be calibrated")
     log(f"fitted multipos on {rec.n} samples in {elapsed:.1f} s")
     _say_quality(q, log)
+    if gsens is not None and "gyr" in state:
+        log(f"multipos: gyro g-sensitivity G (deg/s)/g, rows {_g_rows(gsens)}")
     sensors = tuple(s for s in SENSORS if s in state)
     return Fitted(sensors, state, {"units": units(rec, sensors), "fit_seconds": elapsed, "fit_quality": q})
 
@@ -141,7 +165,7 @@ def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | 
     every fold fitted in one ``vmap``): each pose's ``| |f| - 1 g |`` from the fit that left it out
     (RMS, mg), and each usable transition's carried-gravity angle from the fit that left it out
     (median, deg). The poses are those the fit detected; turns (``--turns``) are not used by the
-    folds. With ``--partial`` the folds fit what the whole fit did (``meta["fit_quality"]["partial"]``).
+    folds. With ``--g-sensitivity`` every fold fits ``G`` too. With ``--partial`` the folds fit what the whole fit did (``meta["fit_quality"]["partial"]``).
 
     Args:
         rec: the recording the model was fitted on.

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from jaxcal.constants import SENSORS
-from jaxcal.methods.base import REF_KEY, Log, ModelError, holdout_mask, recording_spec, rms
+from jaxcal.methods.base import GSENS_KEY, REF_KEY, Log, ModelError, holdout_mask, recording_spec, rms
 from jaxcal.recording import Recording
 
 __all__ = ["describe", "labelled_quality", "linear_parameters", "summary_lines", "take_rows"]
@@ -161,6 +161,8 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
         st = model.state.get(s)
         if isinstance(st, Mapping) and "S" in st and "b" in st:
             params[s] = linear_parameters(st["S"], st["b"], s, _nominal(rec, s), getattr(rec, f"{s}_unit"))
+            if s == "gyr" and GSENS_KEY in st:
+                params[s]["g_sensitivity_degs_per_g"] = np.degrees(np.asarray(st[GSENS_KEY], np.float64)).tolist()
     out: dict[str, Any] = {"parameters": params} if params else {}
     try:
         if method == "multipos":
@@ -221,6 +223,9 @@ def summary_lines(desc: Mapping[str, Any]) -> list[str]:
         lines.append(f"{s}: bias {_fmt3(p['bias'])} {p['bias_unit']}{offset}; {scale}")
         lines.append(f"{s}: misalignment xy xz yx yz zx zy {_fmt3(off, '+.2f')} mrad; non-orthogonality "
                      f"xy {no['xy']:+.2f}, xz {no['xz']:+.2f}, yz {no['yz']:+.2f} mrad")
+        if "g_sensitivity_degs_per_g" in p:
+            rows = "; ".join(_fmt3(row, "+.4f") for row in p["g_sensitivity_degs_per_g"])
+            lines.append(f"{s}: g-sensitivity G rows {rows} (deg/s)/g")
     if "in_sample" in desc:
         lines.append(f"in-sample: {_quality_text(desc['in_sample'])}")
     if "held_out" in desc:

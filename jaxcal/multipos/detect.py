@@ -33,6 +33,8 @@ __all__ = [
     "check_turns",
     "fit_summary",
     "fit_multipos_recording",
+    "fit_multipos_recording_gsens",
+    "traceless",
 ]
 
 
@@ -212,7 +214,7 @@ def fit_multipos_recording(
     Returns the applied calibrations ``(acc_cal, gyr_cal)`` as :class:`~jaxcal.sensor.LinearCal`
     (``x = A (y - b)``, ``x`` in g and rad/s, ``y`` in the recording's units; numpy arrays;
     ``.to_forward()`` gives ``y = S x + b``). The g-sensitivity option is not representable as a
-    ``LinearCal`` and is refused here.
+    ``LinearCal`` and is refused here; :func:`fit_multipos_recording_gsens` fits it.
 
     When the poses do not determine every combination (:func:`check_observable`) this raises,
     unless ``partial``: then, for a recording already in g and rad/s, the accelerometer is fitted
@@ -231,11 +233,69 @@ def fit_multipos_recording(
         partial: fit only what the poses determine instead of refusing (recording in g, rad/s).
         check: run the observability and turn checks.
     """
+    if config.g_sensitivity:
+        raise ValueError("fit_multipos_recording returns affine models; use fit_multipos_recording_gsens for g-sensitivity")
+    fit, config, data, turns, obs, kept = _fit_recording(rec, config, detect, turn_times, partial, check, summary)
+    cals = (fit.acc, None if config.gyr_fit == "none" else fit.gyr)
+    if not summary:
+        return cals
+    return (*cals, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))
+
+
+def fit_multipos_recording_gsens(
+    rec: Recording,
+    config: MultiposConfig = MultiposConfig(g_sensitivity=True),
+    *,
+    detect: DetectOptions | None = None,
+    turn_times: Any = None,
+    partial: bool = False,
+    check: bool = True,
+) -> tuple[LinearCal, LinearCal | None, np.ndarray | None, dict]:
+    """:func:`fit_multipos_recording` with the gyroscope's g-sensitivity fitted
+    (``config.g_sensitivity`` is forced on): ``w = A_g (y_g - b_g) - G_s f``, ``f`` the calibrated
+    accelerometer (g), ``G_s`` in (rad/s)/g, made traceless (:func:`traceless`: gravity carrying does
+    not observe its isotropic part). Returns ``(acc_cal, gyr_cal, G_s, summary)``;
+    ``gyr_cal`` and ``G_s`` are ``None`` when ``partial`` leaves the gyroscope as recorded.
+
+    Args:
+        rec: the recording (``t``, ``acc``, ``gyr``, ``acc_unit``, ``gyr_unit`` are read).
+        config: :class:`~jaxcal.multipos.fit.MultiposConfig` (``g_sensitivity`` set to ``True``).
+        detect: :class:`DetectOptions`; ``None``: :meth:`DetectOptions.for_recording`.
+        turn_times: optional (K, 2) start/end times (s) of whole turns about the vertical.
+        partial: fit only what the poses determine instead of refusing (recording in g, rad/s).
+        check: run the observability and turn checks.
+    """
+    config = config._replace(g_sensitivity=True)
+    fit, config, data, turns, obs, kept = _fit_recording(rec, config, detect, turn_times, partial, check, True)
+    gs = traceless(np.asarray(fit.gsens, np.float64))
+    fit = fit._replace(gsens=gs)
+    gyr = None if config.gyr_fit == "none" else fit.gyr
+    return fit.acc, gyr, None if gyr is None else gs, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {})
+
+
+def traceless(G: np.ndarray) -> np.ndarray:
+    """``G - tr(G) / 3 I``: the part of a gyro g-sensitivity that gravity carrying observes.
+
+    The isotropic part ``c I`` adds ``c f`` to the rate, a rotation about the specific force
+    ``f``, i.e. about the vertical while the IMU only turns: it leaves every carried gravity
+    direction unchanged (``du/dt = -(w + c u) x u = -w x u``), so the multipos residuals do not
+    determine it, and a fit leaves it wherever the solver stopped (measured 0.5 to 1.5 (deg/s)/g
+    on simulated sessions with a true trace of 0.04 (deg/s)/g). It is set to zero.
+
+    Args:
+        G: (3, 3) g-sensitivity.
+    """
+    return G - np.trace(G) / 3.0 * np.eye(3)
+
+
+def _fit_recording(rec: Recording, config: MultiposConfig, detect: DetectOptions | None, turn_times: Any,
+                   partial: bool, check: bool, summary: bool) -> tuple[MultiposFit, MultiposConfig, MultiposData,
+                                                                     VerticalTurns | None, Observability | None, dict]:
+    """The work of :func:`fit_multipos_recording` and :func:`fit_multipos_recording_gsens`:
+    ``(fit, config as fitted, data, turns, observability, kept)``."""
     t, acc, gyr = rec.t, rec.acc, rec.gyr
     if acc is None or gyr is None:
         raise ValueError("multipos needs both 'acc' and 'gyr'")
-    if config.g_sensitivity:
-        raise ValueError("fit_multipos_recording returns affine models; use fit_multipos for g-sensitivity")
     units = (rec.acc_unit, rec.gyr_unit)
     if partial and units != ("g", "rad/s"):
         raise ValueError(f"partial keeps what the poses do not determine as recorded, which needs a recording in "
@@ -263,7 +323,4 @@ def fit_multipos_recording(
             check_observable(obs)
         except ValueError as e:
             raise ValueError(f"{e}; or calibrate only what the poses determine (partial=True, --partial)") from None
-    cals = (fit.acc, None if config.gyr_fit == "none" else fit.gyr)
-    if not summary:
-        return cals
-    return (*cals, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {}))
+    return fit, config, data, turns, obs, kept

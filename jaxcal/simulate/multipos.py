@@ -58,6 +58,7 @@ def simulate_poses(
     noise: bool = True,
     rots: np.ndarray | None = None,
     noise_seed: int = 0,
+    gsens: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A rest, then ``n_poses`` random static poses (or the given ``rots``) joined by
     constant-rate body rotations; raw ``y = A^-1 x + b`` (+ white noise) rounded to counts.
@@ -78,6 +79,9 @@ def simulate_poses(
         noise: add white noise (std 4 LSB accelerometer, 2 LSB gyroscope) before rounding.
         rots: optional (P, 3, 3) body-to-world rotations of the poses, instead of random ones.
         noise_seed: seed of the numpy noise generator.
+        gsens: optional gyroscope g-sensitivity ``G_s`` (3, 3) ((rad/s)/g): the gyroscope measures
+            ``y = A^-1 (w + G_s f) + b``, ``f`` the specific force in g (the inverse of
+            :func:`jaxcal.multipos.gyro.block_rotvecs`' ``w = A (y - b) - G_s f``).
 
     Returns:
         ``(t, acc, gyr)``: (N,) times (s) and (N, 3) raw counts (float).
@@ -107,6 +111,8 @@ def simulate_poses(
     f, w = np.concatenate(f_list), np.concatenate(w_list)
     rng = np.random.default_rng(noise_seed)
     acc = f @ np.linalg.inv(np.asarray(acc_cal.A)).T + np.asarray(acc_cal.b)
+    if gsens is not None:
+        w = w + f @ np.asarray(gsens, np.float64).T
     gyr = w @ np.linalg.inv(np.asarray(gyr_cal.A)).T + np.asarray(gyr_cal.b)
     if noise:
         acc = acc + rng.normal(0, 4.0, acc.shape)
