@@ -129,8 +129,9 @@ OPTION_FLAGS: dict[str, Flag] = {
                             "--prior-cross (results/real.md: MPU-6050 held out 0.79 -> 0.66 mg)", const=True,
                             show_default="off"),
     "g_sensitivity": Flag("--g-sensitivity", None, None, "also fit the gyroscope's g-sensitivity G ((rad/s)/g: "
-                          "w = A_g (y_g - b_g) - G f, f the calibrated accelerometer), stored as state/gyr/G and "
-                          "applied by `jaxcal apply` (which then needs the recording's acc)", const=True,
+                          "w = A_g (y_g - b_g) - G f, f the calibrated accelerometer) jointly with the gyro bias from "
+                          "the rests (4+ poses spanning 3-D), stored as state/gyr/G and applied by `jaxcal apply` "
+                          "(which then needs the recording's acc)", const=True,
                           show_default="off"),
     "prior_scale": Flag("--prior-scale", _real(0.0, 10.0), None,
                         "prior std of the relative scale around the datasheet value (sensitivity tolerance)", "S"),

@@ -52,7 +52,8 @@ class MultiposOptions(NamedTuple):
         min_rest: shortest rest (pose) kept, seconds.
         rest_window: moving-variance window of the rest detector, seconds.
         g_sensitivity: also fit the gyroscope's g-sensitivity ``G`` ((rad/s)/g; stored as
-            ``state/gyr/G``, applied with the calibrated accelerometer).
+            ``state/gyr/G``, applied with the calibrated accelerometer), jointly with the bias
+            from the rests (:func:`~jaxcal.multipos.gyro.rest_gsens`; needs ``gyro_bias="static"``).
     """
 
     turns: tuple[tuple[float, float], ...] | None = None
@@ -80,6 +81,9 @@ def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
         raise ModelError(f"multipos: --acc-model must be 9 or 12, got {options.acc_model!r}")
     if options.gyro_bias not in ("static", "init"):
         raise ModelError(f"multipos: --gyro-bias must be static or init, got {options.gyro_bias!r}")
+    if options.g_sensitivity and options.gyro_bias != "static":
+        raise ModelError("multipos: --g-sensitivity takes the bias jointly from all rests; it cannot be used with "
+                         "--gyro-bias init")
     prior = None
     if options.datasheet_prior:
         per = {}

@@ -38,7 +38,8 @@ as the residual functions and their argument types stay in their modules):
 * ``acc``: :func:`fit_acc`, :func:`fit_acc_determined`, :class:`DatasheetPrior`
   (:class:`~jaxcal.multipos.acc.AccArgs`, :func:`~jaxcal.multipos.acc.acc_residuals`);
 * ``gyro``: the gyro residuals and scores (:class:`~jaxcal.multipos.gyro.GyroArgs`,
-  :func:`~jaxcal.multipos.gyro.gyr_residuals`, :func:`gyro_angle_errors`);
+  :func:`~jaxcal.multipos.gyro.gyr_residuals`, :func:`gyro_angle_errors`; :func:`rest_gsens`: bias and
+  g-sensitivity jointly from the rests);
 * ``fit``: :func:`fit_prepared` (pure JAX, vmappable over weights; :data:`fit_prepared_jit`),
   :func:`fit_multipos`;
 * ``observe``: :func:`observability`, :func:`check_observable`;
@@ -66,9 +67,24 @@ from jaxcal.multipos.data import (
     prepare_turns,
     turns_from_times,
 )
-from jaxcal.multipos.detect import DetectOptions, check_turns, detect_and_fit, fit_multipos_recording, fit_summary
+from jaxcal.multipos.detect import (
+    DetectOptions,
+    check_turns,
+    detect_and_fit,
+    fit_multipos_recording,
+    fit_multipos_recording_gsens,
+    fit_summary,
+    rest_design_sv,
+)
 from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_multipos, fit_prepared, fit_prepared_jit
-from jaxcal.multipos.gyro import block_rotvecs, carry_rotation, gyro_angle_errors, known_rotation_errors, vertical_turn_errors
+from jaxcal.multipos.gyro import (
+    block_rotvecs,
+    carry_rotation,
+    gyro_angle_errors,
+    known_rotation_errors,
+    rest_gsens,
+    vertical_turn_errors,
+)
 from jaxcal.multipos.heldout import HeldOut, fold_ids, leave_poses_out
 from jaxcal.multipos.observe import Observability, check_observable, observability
 from jaxcal.multipos.timesplit import (
@@ -88,9 +104,10 @@ __all__ = [
     "turns_from_times", "OBSERVABLE_TOL",
     # fits and configuration
     "MultiposConfig", "MultiposFit", "DatasheetPrior", "MPU6050_PRIOR", "fit_prepared", "fit_prepared_jit",
-    "fit_multipos", "fit_acc", "fit_acc_determined",
+    "fit_multipos", "fit_acc", "fit_acc_determined", "rest_gsens",
     # recordings
-    "DetectOptions", "detect_and_fit", "fit_multipos_recording", "fit_summary", "check_turns",
+    "DetectOptions", "detect_and_fit", "fit_multipos_recording", "fit_multipos_recording_gsens", "fit_summary",
+    "check_turns", "rest_design_sv",
     # what the poses determine
     "Observability", "observability", "check_observable",
     # scores

@@ -34,6 +34,7 @@ __all__ = [
     "fit_summary",
     "fit_multipos_recording",
     "fit_multipos_recording_gsens",
+    "rest_design_sv",
     "traceless",
 ]
 
@@ -253,9 +254,13 @@ def fit_multipos_recording_gsens(
 ) -> tuple[LinearCal, LinearCal | None, np.ndarray | None, dict]:
     """:func:`fit_multipos_recording` with the gyroscope's g-sensitivity fitted
     (``config.g_sensitivity`` is forced on): ``w = A_g (y_g - b_g) - G_s f``, ``f`` the calibrated
-    accelerometer (g), ``G_s`` in (rad/s)/g, made traceless (:func:`traceless`: gravity carrying does
-    not observe its isotropic part). Returns ``(acc_cal, gyr_cal, G_s, summary)``;
-    ``gyr_cal`` and ``G_s`` are ``None`` when ``partial`` leaves the gyroscope as recorded.
+    accelerometer (g), ``G_s`` in (rad/s)/g. By default (``config.gsens_from="rests"``) the bias
+    and ``G_s`` come jointly from the rests (:func:`~jaxcal.multipos.gyro.rest_gsens`: at rest
+    each pose's mean output is ``b_g + H f``), trace included; with ``"transitions"`` ``G_s`` is
+    fitted from the carried gravity instead and made traceless (:func:`traceless`). Returns
+    ``(acc_cal, gyr_cal, G_s, summary)``; ``gyr_cal`` and ``G_s`` are ``None`` when ``partial``
+    leaves the gyroscope as recorded. With ``check``, rests whose gravity directions do not span
+    3-D (:func:`rest_design_sv` below ``OBSERVABLE_TOL``) are refused.
 
     Args:
         rec: the recording (``t``, ``acc``, ``gyr``, ``acc_unit``, ``gyr_unit`` are read).
@@ -267,10 +272,34 @@ def fit_multipos_recording_gsens(
     """
     config = config._replace(g_sensitivity=True)
     fit, config, data, turns, obs, kept = _fit_recording(rec, config, detect, turn_times, partial, check, True)
-    gs = traceless(np.asarray(fit.gsens, np.float64))
+    sv = rest_design_sv(data, fit.acc)
+    if check and sv.min() < OBSERVABLE_TOL:
+        raise ValueError(f"the g-sensitivity needs rests whose gravity directions span 3-D (at least 4 poses; relative "
+                         f"singular values of the rests' design {np.array2string(sv, precision=3)}): add poses with "
+                         f"each axis up and down")
+    gs = np.asarray(fit.gsens, np.float64)
+    if config.gsens_from == "transitions":
+        gs = traceless(gs)
     fit = fit._replace(gsens=gs)
     gyr = None if config.gyr_fit == "none" else fit.gyr
-    return fit.acc, gyr, None if gyr is None else gs, fit_summary(data, fit, turns, obs) | ({"partial": kept} if kept else {})
+    summary = fit_summary(data, fit, turns, obs) | {"gsens_rest_sv_min": float(sv.min())}
+    return fit.acc, gyr, None if gyr is None else gs, summary | ({"partial": kept} if kept else {})
+
+
+def rest_design_sv(data: MultiposData, acc: LinearCal) -> np.ndarray:
+    """Relative singular values (largest 1) of the rests' design ``[1, f_k]`` of
+    :func:`~jaxcal.multipos.gyro.rest_gsens` (columns scaled to unit norm): small when the poses'
+    gravity directions do not span 3-D, so the bias and the g-sensitivity are not both determined.
+
+    Args:
+        data: prepared poses.
+        acc: the accelerometer calibration giving ``f_k``.
+    """
+    f = (np.asarray(data.pose_acc, np.float64) - np.asarray(acc.b)) @ np.asarray(acc.A).T
+    x = np.concatenate([np.ones((len(f), 1)), f], 1)
+    n = np.linalg.norm(x, axis=0)
+    sv = np.linalg.svd(x / np.where(n > 0, n, 1.0), compute_uv=False)
+    return sv / sv[0]
 
 
 def traceless(G: np.ndarray) -> np.ndarray:
@@ -278,9 +307,10 @@ def traceless(G: np.ndarray) -> np.ndarray:
 
     The isotropic part ``c I`` adds ``c f`` to the rate, a rotation about the specific force
     ``f``, i.e. about the vertical while the IMU only turns: it leaves every carried gravity
-    direction unchanged (``du/dt = -(w + c u) x u = -w x u``), so the multipos residuals do not
-    determine it, and a fit leaves it wherever the solver stopped (measured 0.5 to 1.5 (deg/s)/g
-    on simulated sessions with a true trace of 0.04 (deg/s)/g). It is set to zero.
+    direction unchanged (``du/dt = -(w + c u) x u = -w x u``), so the transitions alone do not
+    determine it (a fit from them, ``gsens_from="transitions"``, left it at 0.5 to 1.5 (deg/s)/g on
+    simulated sessions with a true trace of 0.04 (deg/s)/g), and that estimate sets it to zero.
+    The rests do determine it (:func:`~jaxcal.multipos.gyro.rest_gsens`).
 
     Args:
         G: (3, 3) g-sensitivity.

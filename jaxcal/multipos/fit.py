@@ -18,7 +18,7 @@ from jaxtyping import Float
 from jaxcal.arrays import Array
 from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
 from jaxcal.multipos.data import KnownRotations, MultiposData, VerticalTurns, calibrated_acc_sums, prepare
-from jaxcal.multipos.gyro import GyroArgs, gyr_residuals, turn_init
+from jaxcal.multipos.gyro import GyroArgs, gyr_residuals, rest_gsens, turn_init
 from jaxcal.sensor import LinearCal
 
 __all__ = [
@@ -39,7 +39,12 @@ class MultiposConfig(NamedTuple):
         acc_model: ``"9"`` or ``"12"``.
         gyro_bias: ``"static"`` (mean over the static intervals in use) or ``"init"`` (the first
             interval only, as imu_tk).
-        g_sensitivity: also fit ``G_s``.
+        g_sensitivity: also fit the gyro g-sensitivity ``G_s`` ((rad/s)/g); needs ``gyro_bias``
+            ``"static"``: bias and ``G_s`` come from the rests jointly (:func:`rest_gsens`).
+        gsens_from: with ``g_sensitivity``, ``"rests"`` (default: ``G_s = G H`` with ``H`` from the
+            rests' regression, held fixed in the gyro fit; trace included) or ``"transitions"``
+            (``G_s`` fitted from the carried gravity, an independent estimate whose trace the
+            transitions do not determine; bias still from the rests' regression).
         midpoint: midpoint rates (else the left sample, zero-order hold).
         max_steps: LM iteration cap.
         prior: optional :class:`~jaxcal.multipos.acc.DatasheetPrior` (MAP on scales and
@@ -61,6 +66,7 @@ class MultiposConfig(NamedTuple):
     acc_ridge: float = 1e-2
     acc_fit: str = "full"
     gyr_fit: str = "full"
+    gsens_from: str = "rests"
 
 
 class MultiposFit(NamedTuple):
@@ -114,6 +120,9 @@ def fit_prepared(
     if config.acc_fit not in ("full", "determined") or config.gyr_fit not in ("full", "none"):
         raise ValueError(f"acc_fit must be 'full' or 'determined' and gyr_fit 'full' or 'none', got "
                          f"{config.acc_fit!r} and {config.gyr_fit!r}")
+    if config.g_sensitivity and (config.gyro_bias != "static" or config.gsens_from not in ("rests", "transitions")):
+        raise ValueError(f"g_sensitivity takes the bias from all rests (gyro_bias 'static', got {config.gyro_bias!r}) and "
+                         f"gsens_from 'rests' or 'transitions' (got {config.gsens_from!r})")
     acc_w = jnp.ones(P, dtype) if acc_w is None else acc_w
     gyr_w = jnp.ones(P - 1, dtype) if gyr_w is None else gyr_w
     gyr_w = gyr_w * data.seg_ok.astype(dtype)
@@ -127,14 +136,19 @@ def fit_prepared(
         return MultiposFit(acc, LinearCal(jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)), zero, acc_cost, jnp.asarray(0.0, dtype))
     f = (data.pose_acc - acc.b) @ acc.A.T
     u = f / jnp.linalg.norm(f, axis=-1, keepdims=True)
-    # gyro bias from the static intervals (of the poses in use)
-    if config.gyro_bias == "init":
+    # gyro bias from the static intervals (of the poses in use); with g-sensitivity, jointly with it
+    wn = acc_w * data.pose_n
+    h = None
+    if config.g_sensitivity:
+        bg, h = rest_gsens(data.pose_gyr, f, wn)
+    elif config.gyro_bias == "init":
         bg = data.pose_gyr[0]
     else:
-        wn = acc_w * data.pose_n
         bg = jnp.sum(wn[:, None] * data.pose_gyr, 0) / jnp.sum(wn)
+    fit_gs = config.g_sensitivity and config.gsens_from == "transitions"
     # the scale (1 here) is set per grid point below, then to the best one
-    args = GyroArgs(data, bg, jnp.asarray(1.0, dtype), config.g_sensitivity, calibrated_acc_sums(acc, data), u, gyr_w)
+    args = GyroArgs(data, bg, jnp.asarray(1.0, dtype), fit_gs, calibrated_acc_sums(acc, data), u, gyr_w,
+                    rest_gsens=None if fit_gs else h)
     if known is not None:
         known_w = jnp.ones(known.R.shape[0], dtype) if known_w is None else known_w
         args = args._replace(known=known, known_w=known_w, known_fsum=calibrated_acc_sums(acc, known))
@@ -143,7 +157,7 @@ def fit_prepared(
         args = args._replace(turns=turns, turns_w=turns_w, acc=acc)
     # scale initialisation: grid over G = s I, both signs (4 per decade)
     grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
-    zero = jnp.zeros(18 if config.g_sensitivity else 9, dtype)
+    zero = jnp.zeros(18 if fit_gs else 9, dtype)
 
     def cost_at(s, th):  # the data rows alone (no prior)
         return jnp.sum(gyr_residuals(th, args._replace(scale=s)) ** 2)
@@ -160,7 +174,10 @@ def fit_prepared(
     solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
     sol = optx.least_squares(gyr_residuals, solver, theta0, args=args, max_steps=config.max_steps, throw=False)
     g = s0 * (jnp.eye(3, dtype=dtype) + sol.value[:9].reshape(3, 3))
-    gs = sol.value[9:18].reshape(3, 3) if config.g_sensitivity else jnp.zeros((3, 3), dtype)
+    if fit_gs:
+        gs = sol.value[9:18].reshape(3, 3)
+    else:
+        gs = jnp.zeros((3, 3), dtype) if h is None else g @ h
     gyr_cost = jnp.sum(gyr_residuals(sol.value, args._replace(prior=None)) ** 2)
     return MultiposFit(acc, LinearCal(g, bg), gs, acc_cost, gyr_cost)
 

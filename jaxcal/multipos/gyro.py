@@ -28,6 +28,7 @@ __all__ = [
     "vertical_turn_residuals",
     "vertical_turn_errors",
     "turn_init",
+    "rest_gsens",
     "GyroArgs",
     "gyr_residuals",
     "gyro_angle_errors",
@@ -160,6 +161,28 @@ def turn_init(b: Float[Array, "3"], acc: LinearCal, turns: VerticalTurns, w: Flo
     return jnp.linalg.lstsq(yw.T @ y, yw.T @ target, rcond=1e-10)[0].T
 
 
+def rest_gsens(
+    pose_gyr: Float[Array, "P 3"], f: Float[Array, "P 3"], w: Float[Array, " P"]
+) -> tuple[Float[Array, "3"], Float[Array, "3 3"]]:
+    """Gyro bias and g-sensitivity from the rests alone: the weighted least-squares fit of
+    ``pose_gyr_k = b + H f_k`` (``H`` raw gyro units per g; the applied-form g-sensitivity is
+    ``G_s = G H`` for a gyro matrix ``G``). At rest the true rate is zero, so each pose's mean
+    output is the bias plus the g-sensitivity's response to that pose's specific force: four or
+    more poses whose gravity directions span 3-D determine both, trace included (the vertical
+    component of the Earth's rate, ``15.04 sin(latitude)`` deg/h, at most 0.0042 (deg/s)/g, reads
+    as part of the isotropic ``tr(G_s)/3``). Pure and vmappable; a zero weight leaves a pose out.
+
+    Args:
+        pose_gyr: (P, 3) mean gyroscope output per pose (raw units).
+        f: (P, 3) calibrated specific force per pose (g).
+        w: (P,) weight per pose (e.g. its sample count; 0 leaves it out).
+    """
+    sw = jnp.sqrt(w / jnp.max(w))[:, None]
+    x = jnp.concatenate([jnp.ones_like(f[:, :1]), f], axis=1)
+    coef = jnp.linalg.lstsq(x * sw, pose_gyr * sw)[0]
+    return coef[0], coef[1:].T
+
+
 class GyroArgs(NamedTuple):
     """Arguments of :func:`gyr_residuals` (the optimistix ``args`` pytree). An optional term is
     absent when its fields are ``None`` (``known``: known rotations; ``turns``: vertical turns;
@@ -173,7 +196,7 @@ class GyroArgs(NamedTuple):
         data: the prepared poses and transitions (:class:`MultiposData`).
         bias: (3,) gyro bias ``b_g`` (raw units), held fixed.
         scale: scalar start scale ``s0``: ``G = s0 (I + theta[:9])``.
-        g_sensitivity: also fit ``G_s = theta[9:18]`` (else ``G_s = 0``).
+        g_sensitivity: also fit ``G_s = theta[9:18]`` (else ``G_s = 0``, or ``G H`` with ``rest_gsens``).
         fsum: (J, L, 3) calibrated accelerometer block sums (:func:`calibrated_acc_sums`).
         u: (P, 3) calibrated unit gravity direction of every pose.
         w: (J,) weight per transition (0 leaves it out).
@@ -184,6 +207,9 @@ class GyroArgs(NamedTuple):
         turns: optional :class:`VerticalTurns`.
         turns_w: (T,) weights of the turns (with ``turns``).
         acc: the accelerometer calibration giving the turns' axes (with ``turns``).
+        rest_gsens: optional (3, 3) g-sensitivity ``H`` in raw units per g, held fixed
+            (:func:`rest_gsens`): ``G_s = G H`` follows the gyro matrix (needs ``g_sensitivity``
+            off).
     """
 
     data: MultiposData
@@ -200,6 +226,7 @@ class GyroArgs(NamedTuple):
     turns: VerticalTurns | None = None
     turns_w: Float[Array, " T"] | None = None
     acc: LinearCal | None = None
+    rest_gsens: Float[Array, "3 3"] | None = None
 
 
 def gyr_residuals(theta: Float[Array, " Q"], args: GyroArgs) -> Float[Array, " R"]:
@@ -212,12 +239,13 @@ def gyr_residuals(theta: Float[Array, " Q"], args: GyroArgs) -> Float[Array, " R
     divided by its ``gyr_sigma`` plus its 9 prior rows on ``G``.
 
     Args:
-        theta: (Q,) parameters, ``G = s0 (I + theta[:9])`` and ``G_s = theta[9:18]`` (traced).
+        theta: (Q,) parameters, ``G = s0 (I + theta[:9])`` and ``G_s = theta[9:18]`` (traced; with
+            ``args.rest_gsens`` ``H``, ``G_s = G H`` and ``Q = 9``).
         args: :class:`GyroArgs` (which of its fields are static is said there).
     """
-    d, bg, s0, gs, fsum, u, wj, known, known_w, kfsum, prior, turns, turns_w, acc = args
+    d, bg, s0, gs, fsum, u, wj, known, known_w, kfsum, prior, turns, turns_w, acc, h = args
     g = s0 * (jnp.eye(3, dtype=theta.dtype) + theta[:9].reshape(3, 3))
-    gsm = theta[9:18].reshape(3, 3) if gs else jnp.zeros((3, 3), theta.dtype)
+    gsm = theta[9:18].reshape(3, 3) if gs else (jnp.zeros((3, 3), theta.dtype) if h is None else g @ h)
     r = carry_rotation(block_rotvecs(g, bg, gsm, d, fsum), jnp.ones_like(d.sdt))
     pred = jnp.einsum("jba,jb->ja", r, u[:-1])  # R^T u_j
     rows = [(jnp.sqrt(wj)[:, None] * (pred - u[1:])).ravel()]
