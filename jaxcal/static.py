@@ -31,6 +31,7 @@ __all__ = [
     "moving_variance",
     "intervals_from_mask",
     "detect_static",
+    "rest_gyr_baseline",
     "threshold_scan",
     "static_mask",
 ]
@@ -108,6 +109,7 @@ def detect_static(
     min_duration: float = 1.0,
     gyr: np.ndarray | None = None,
     gyr_k: float = 10.0,
+    gyr_gsens: bool = False,
 ) -> StaticDetection:
     """imu_tk's detector with one threshold multiplier ``k``.
 
@@ -116,7 +118,9 @@ def detect_static(
     ``|gyr - b|`` below ``gyr_k`` times the gyro noise, which cuts such turns out; ``b`` is the
     median gyro output over the accelerometer-static samples and the noise (norm of the per-axis
     std) is estimated robustly there from sample-to-sample differences (1.4826 MAD / sqrt 2), so a
-    hand still moving during the initial period does not inflate it.
+    hand still moving during the initial period does not inflate it. With ``gyr_gsens`` the rest
+    output may depend on the pose (a gyro g-sensitivity): ``b`` is then :func:`rest_gyr_baseline`,
+    the gyro output at rest as an affine function of the accelerometer's direction.
 
     Args:
         t: (N,) sample times (s).
@@ -129,6 +133,7 @@ def detect_static(
         min_duration: shortest static interval kept (s).
         gyr: optional (N, 3) gyroscope (any unit), see above.
         gyr_k: gyro threshold multiplier.
+        gyr_gsens: let the gyro's rest output follow the pose (see above).
 
     Returns:
         :class:`StaticDetection`.
@@ -150,14 +155,42 @@ def detect_static(
     if gyr is not None:  # applies to the initial period too
         g = np.asarray(gyr, np.float64)
         still = mask.copy()  # accelerometer-static, initial period included
-        b = np.median(g[still], axis=0)
         dg = np.abs(np.diff(g, axis=0))[still[1:] & still[:-1]]
         sigma = float(np.linalg.norm(1.4826 * np.median(dg, axis=0) / np.sqrt(2.0)))
+        if gyr_gsens:
+            b = rest_gyr_baseline(g, np.asarray(acc, np.float64), still, gyr_k * max(sigma, 1e-12))
+        else:
+            b = np.median(g[still], axis=0)
         with jax.enable_x64(True):
             dev = np.asarray(moving_mean(jnp.asarray(np.linalg.norm(g - b, axis=1)), half))
         mask &= dev < gyr_k * max(sigma, 1e-12)
     iv = intervals_from_mask(mask, max(1, int(round(min_duration / dt))))
     return StaticDetection(iv, var_mag, threshold, float(k))
+
+
+def rest_gyr_baseline(gyr: np.ndarray, acc: np.ndarray, still: np.ndarray, gate: float, steps: int = 3) -> np.ndarray:
+    """The gyro's output at rest as ``b + H a / |a|`` (``a`` the accelerometer), per sample: the
+    pose-dependent rest output of a gyro with a g-sensitivity, fitted by least squares on the
+    accelerometer-still samples, trimmed: a sample whose residual exceeds
+    ``max(gate, 5 median residual)`` (e.g. a turn about the vertical, which the accelerometer
+    cannot see) is left out, starting from the median output (``H = 0``), ``steps`` times.
+
+    Args:
+        gyr: (N, 3) gyroscope output.
+        acc: (N, 3) accelerometer output (any unit; only its direction is used).
+        still: (N,) accelerometer-still samples.
+        gate: residual norm below which a sample always counts as rest (gyro units).
+        steps: trimming rounds.
+    """
+    x = np.concatenate([np.ones((len(acc), 1)), acc / np.linalg.norm(acc, axis=1, keepdims=True)], 1)
+    base = np.broadcast_to(np.median(gyr[still], axis=0), gyr.shape)
+    for _ in range(steps):
+        r = np.linalg.norm(gyr - base, axis=1)
+        keep = still & (r < max(gate, 5.0 * float(np.median(r[still]))))
+        if keep.sum() < 8:
+            break
+        base = x @ np.linalg.lstsq(x[keep], gyr[keep], rcond=None)[0]
+    return base
 
 
 def threshold_scan(

@@ -257,6 +257,39 @@ def test_online_without_labels_beats_spec(sim, tmp_path, capsys):
         assert e_model < 0.1 * e_spec, (s, e_model, e_spec)
 
 
+def test_applied_sequence_score_equals_the_affine_one(sim):
+    """Two implementations of the sequences' score: ``online.quality`` scores an ``online`` model
+    through its affine calibrations, ``online.seq_split_quality`` (any method's model, e.g.
+    ``online-thesis``) through its applied output. On the same model both rows agree (measured: equal
+    to the last bit, in-sample and held out; the tolerance allows for float64 rounding elsewhere), and
+    both held-out rows come from the same time split."""
+    from jaxcal.methods.online import OnlineOptions, quality, seq_split_quality
+
+    rec = load_recording(sim / "nolabels" / "train.npz")
+    model = methods.fit("online", rec, OnlineOptions())
+    ins_a, ho_a = quality(rec, OnlineOptions(), model, held_out=True)
+    ins_b, ho_b = seq_split_quality("online", rec, OnlineOptions(), model, held_out=True)
+    for a, b in ((ins_a, ins_b), (ho_a, ho_b)):
+        np.testing.assert_allclose(b["acc_rms_mg"], a["acc_rms_mg"], rtol=1e-9)
+        np.testing.assert_allclose(b["gyr_median_deg"], a["gyr_median_deg"], rtol=1e-6)
+    # and against numpy directly: | |f| - 1 g | at every sequence's first and last samples
+    out = model.apply(rec)
+    starts = np.flatnonzero(np.r_[True, rec.seq[1:] != rec.seq[:-1]])
+    ends = np.r_[starts[1:], rec.n] - 1
+    e = np.linalg.norm(out["acc_cal"][np.sort(np.r_[starts, ends])], axis=1) - 1.0
+    np.testing.assert_allclose(ins_b["acc_rms_mg"], 1e3 * np.sqrt(np.mean(e**2)), rtol=1e-9)
+
+
+def test_online_thesis_reports_a_held_out_time_split(sim, tmp_path, capsys):
+    code, out, err = run(capsys, "calibrate", "--method", "online-thesis", sim / "nolabels" / "train.npz",
+                         "--out", tmp_path / "ot.npz", "--seed", "3")
+    assert code == 0, err
+    meta = load_model(tmp_path / "ot.npz").meta
+    ins, ho = meta["in_sample"], meta["held_out"]
+    assert "time split: refitted on the first 10 sequences, scored on the last 2" in ho["how"], ho
+    assert np.isfinite(ho["acc_rms_mg"]) and np.isfinite(ins["acc_rms_mg"]) and "held out:" in out
+
+
 def test_online_thesis_cli_equals_library(sim, tmp_path, capsys):
     """The CLI runs exactly the library's algorithm (same key, data, spec) and applies it the same.
 

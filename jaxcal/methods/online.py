@@ -35,7 +35,7 @@ from jaxcal.sensor import Diag, LinearCal
 from jaxcal.sequences import sequence_bounds
 from jaxcal.static import detect_static
 
-__all__ = ["METHOD", "OnlineOptions", "RestSequences", "fit", "quality", "rest_sequences"]
+__all__ = ["METHOD", "OnlineOptions", "RestSequences", "fit", "quality", "rest_sequences", "seq_split_quality"]
 
 
 class OnlineOptions(NamedTuple):
@@ -288,6 +288,67 @@ def _seq_quality(rec: Recording, options: OnlineOptions, model: Any, cals: tuple
         return ins, {"error": f"time split: {e}"}
     ea, eg = _score(c, _ends_data(rec, bounds[M - k:]))
     return ins, _row(ea, eg[::2], f"time split: fitted on the first {M - k} sequences, scored on the last {k} "
+                     "(their first and last samples)")
+
+
+def _applied_score(model: Any, rec: Recording, bounds: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_score` of any model from its applied output (g, rad/s) at the sequences' ends;
+    a sequence whose raw gyro saturates is not scored."""
+    out = model.apply(rec)
+    if "acc_cal" not in out or "gyr_cal" not in out:
+        raise ModelError("the sequences' score needs a model of both sensors")
+    iv = np.array([p for a, b in bounds for p in ((a, a + 1), (b - 1, b))], int)
+    d = mp.prepare(np.asarray(rec.t, np.float64), np.asarray(out["acc_cal"], np.float64),
+                   np.asarray(out["gyr_cal"], np.float64), iv)
+    d = d._replace(seg_ok=np.asarray(d.seg_ok) & np.asarray(_ends_data(rec, bounds).seg_ok))
+    ident = LinearCal(np.eye(3), np.zeros(3))
+    return _score((ident, ident), d)
+
+
+def seq_split_quality(method: str, rec: Recording, options: Any, model: Any, *, held_out: bool = True,
+                      log: Log | None = None) -> tuple[dict, dict | None]:
+    """In-sample and held-out quality of any method's model on a recording with ``seq`` ids, from
+    its applied output (as :func:`quality` scores ``online``): each sequence by its first and last
+    samples (``| |f| - 1 g |`` there, and the gravity carried from the first to the last). Held
+    out: a time split, ``method`` refitted on the first 80 % of the sequences and scored on the
+    last 20 %.
+
+    Args:
+        method: the registered method's name (refitted for the held-out row).
+        rec: the recording the model was fitted on (with ``seq``).
+        options: the fit's options.
+        model: the fitted :class:`~jaxcal.methods.CalibrationModel`.
+        held_out: also compute the held-out row.
+        log: progress sink, or ``None``.
+
+    Returns:
+        ``(in_sample, held_out)`` rows (``held_out`` ``None`` when not asked for).
+    """
+    from jaxcal import methods  # the registry imports this module
+    from jaxcal.methods.summary import take_rows
+
+    if rec.seq is None:
+        raise ModelError(f"{method}: the sequences' score needs seq ids")
+    starts, ends = sequence_bounds(rec.seq)
+    bounds = [(int(a), int(b)) for a, b in zip(starts, ends) if b - a >= 2]
+    M = len(bounds)
+    ea, eg = _applied_score(model, rec, bounds)
+    ins = _row(ea, eg[::2], f"first and last samples of all {M} sequences")
+    if not held_out:
+        return ins, None
+    k = max(1, int(round(HELD_OUT_SHARE * M)))
+    if M - k < 2:
+        return ins, {"error": f"{M} sequences: too few for a held-out time split"}
+    cut = bounds[M - k][0]
+    rows = np.arange(rec.n)
+    if log is not None:
+        log(f"held out: refitting {method} on the first {M - k} sequences, scoring the last {k} ...")
+    try:
+        sub = methods.fit(method, take_rows(rec, rows < cut), options)
+    except ModelError as e:
+        return ins, {"error": f"time split: {e}"}
+    ea, eg = _applied_score(sub, take_rows(rec, rows >= cut), [(a - cut, b - cut) for a, b in bounds[M - k:]])
+    return ins, _row(ea, eg[::2], f"time split: refitted on the first {M - k} sequences, scored on the last {k} "
                      "(their first and last samples)")
 
 

@@ -9,7 +9,8 @@ quality in-sample and held out.
   registered method's model (CONVENTIONS.md, "Model files"); :func:`summary_lines` prints them.
 
 Held-out figures of the self-calibration methods live in their modules
-(:func:`jaxcal.methods.multipos.heldout`, :func:`jaxcal.methods.online.heldout`).
+(:func:`jaxcal.methods.multipos.heldout`, :func:`jaxcal.methods.online.quality`;
+:func:`jaxcal.methods.online.seq_split_quality` for ``online-thesis``).
 """
 
 from __future__ import annotations
@@ -172,6 +173,9 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
             ho = multipos.heldout(rec, options, model.meta) if held_out else None
         elif method == "online":
             ins, ho = online.quality(rec, options, model, held_out=held_out, log=log)
+            out["in_sample"] = ins
+        elif method == "online-thesis":
+            ins, ho = online.seq_split_quality(method, rec, options, model, held_out=held_out, log=log)
             out["in_sample"] = ins
         elif method in ("linear", "cubic", "nn"):
             ins, ho = labelled_quality(method, rec, options, model, log) if held_out else (None, None)

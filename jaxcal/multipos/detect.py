@@ -123,7 +123,8 @@ def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: Multipo
     best = None
     for k in detect.ks:
         det = detect_static(t, acc, k=k, init_duration=init_duration, window=detect.window,
-                            min_duration=detect.min_duration, gyr=gyr if detect.gyr_gate else None)
+                            min_duration=detect.min_duration, gyr=gyr if detect.gyr_gate else None,
+                            gyr_gsens=config.g_sensitivity)
         if len(det.intervals) < 9:
             continue
         with jax.enable_x64(True):
