@@ -269,6 +269,13 @@ def _with_reader(bag: Path, kind: str, fn: Callable[[Any], Any]) -> Any:
         reader = _open(bag, kind)
     except ReaderError:
         raise
+    except KeyError as e:  # rosbags maps a definition's encoding; rosbag2 writes "unknown" when it had none
+        if kind == "ros1" or not isinstance(e.args[0] if e.args else None, str):
+            raise ReaderError(f"{bag}: not a readable ROS bag ({_one_line(e)})") from None
+        raise ReaderError(f"{bag}: a message definition has the encoding {e.args[0]!r} (rosbag2 writes 'unknown' when "
+                          "it lacked a type's definition), which rosbags cannot read; for sqlite3 run "
+                          "DELETE FROM message_definitions WHERE encoding = 'unknown' on a copy, and the standard "
+                          "sensor_msgs/geometry_msgs layouts are used") from None
     except Exception as e:  # AnyReaderError, FileNotFoundError, apsw / struct / yaml errors of a damaged file
         raise ReaderError(f"{bag}: not a readable ROS bag ({_one_line(e)})") from None
     try:

@@ -469,3 +469,26 @@ def test_bag_topics_lists_types_and_counts(bags):
             "/tf": ("tf2_msgs/msg/TFMessage", M), "/imu_empty": ("sensor_msgs/msg/Imu", 0)}
     for bag in bags.values():
         assert bag_topics(bag) == want
+
+
+def test_ros2_bags_without_message_definitions(tmp_path, capsys):
+    """rosbag2 before Iron stored no message definitions: the standard layouts are used, and the
+    samples come back exactly. A definition stored with the encoding 'unknown' (what rosbag2 writes
+    when it lacked one) is refused in one line that says what to do, and doing it imports the bag."""
+    import sqlite3
+
+    tr = Truth()
+    ts = _typestore("sqlite3")
+    bag = write_bag(tmp_path / "b", "sqlite3", {"/imu0": ("sensor_msgs/msg/Imu", tr.imu_msgs(ts))})
+    db = next(bag.glob("*.db3"))
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE message_definitions SET encoding = 'unknown', encoded_message_definition = ''")
+    out = tmp_path / "rec.npz"
+    line = refused(capsys, ["import", "rosbag", bag, "--imu-topic", "/imu0", "--out", out], out, "'unknown'",
+                   "DELETE FROM message_definitions WHERE encoding = 'unknown'")
+    with sqlite3.connect(db) as con:
+        con.execute(line[line.index("DELETE"):line.index("'unknown'", line.index("DELETE")) + len("'unknown'")])
+    rec = _import_imu0(capsys, bag, tmp_path)
+    np.testing.assert_array_equal(rec.acc, tr.acc / G0)
+    np.testing.assert_array_equal(rec.gyr, tr.gyr)
+    np.testing.assert_array_equal(rec.t, (tr.ns - tr.ns[0]) / 1e9)
