@@ -265,30 +265,41 @@ def _ends_data(rec: Recording, bounds: list[tuple[int, int]]) -> Any:
                       gyr_limit=mp.DetectOptions.for_recording(rec).gyr_limit)
 
 
-def _seq_quality(rec: Recording, options: OnlineOptions, model: Any, cals: tuple[Any, Any],
-                 held_out: bool) -> tuple[dict, dict | None]:
-    """:func:`quality` on a recording with ``seq`` ids: each sequence scored by its first and last
-    samples (``| |f| - 1 g |`` there, and the gravity carried from the first to the last); held out:
-    a time split, fitted on the first 80 % of the sequences and scored on the last 20 %."""
+def _time_split_rows(rec: Recording, held_out: bool, score: Any, fit_score: Any, verb: str) -> tuple[dict, dict | None]:
+    """In-sample and time-split rows on a recording with ``seq`` ids: ``score(bounds)`` scores the
+    sequences with sample ranges ``bounds``; ``fit_score(train, test)`` fits on the ``train``
+    sequences (the first 80 %) and scores the ``test`` ones (the last 20 %)."""
     starts, ends = sequence_bounds(rec.seq)
     bounds = [(int(a), int(b)) for a, b in zip(starts, ends) if b - a >= 2]
     M = len(bounds)
-    ea, eg = _score(cals, _ends_data(rec, bounds))
+    ea, eg = score(bounds)
     ins = _row(ea, eg[::2], f"first and last samples of all {M} sequences")
     if not held_out:
         return ins, None
     k = max(1, int(round(HELD_OUT_SHARE * M)))
     if M - k < 2:
         return ins, {"error": f"{M} sequences: too few for a held-out time split"}
-    acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
-    hp = _hp(options, None, False)
     try:
-        c = _fit_segments(rec, np.asarray(bounds[: M - k]), recording_dt(rec), acc_spec, gyr_spec, hp, options.kind)
-    except ValueError as e:
+        ea, eg = fit_score(bounds[: M - k], bounds[M - k:])
+    except (ValueError, ModelError) as e:
         return ins, {"error": f"time split: {e}"}
-    ea, eg = _score(c, _ends_data(rec, bounds[M - k:]))
-    return ins, _row(ea, eg[::2], f"time split: fitted on the first {M - k} sequences, scored on the last {k} "
+    return ins, _row(ea, eg[::2], f"time split: {verb} on the first {M - k} sequences, scored on the last {k} "
                      "(their first and last samples)")
+
+
+def _seq_quality(rec: Recording, options: OnlineOptions, model: Any, cals: tuple[Any, Any],
+                 held_out: bool) -> tuple[dict, dict | None]:
+    """:func:`quality` on a recording with ``seq`` ids: each sequence scored by its first and last
+    samples (``| |f| - 1 g |`` there, and the gravity carried from the first to the last); held out:
+    a time split, fitted on the first 80 % of the sequences and scored on the last 20 %."""
+
+    def fit_score(train: list, test: list) -> tuple[np.ndarray, np.ndarray]:
+        acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
+        c = _fit_segments(rec, np.asarray(train), recording_dt(rec), acc_spec, gyr_spec, _hp(options, None, False),
+                          options.kind)
+        return _score(c, _ends_data(rec, test))
+
+    return _time_split_rows(rec, held_out, lambda bounds: _score(cals, _ends_data(rec, bounds)), fit_score, "fitted")
 
 
 def _applied_score(model: Any, rec: Recording, bounds: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
@@ -329,27 +340,15 @@ def seq_split_quality(method: str, rec: Recording, options: Any, model: Any, *, 
 
     if rec.seq is None:
         raise ModelError(f"{method}: the sequences' score needs seq ids")
-    starts, ends = sequence_bounds(rec.seq)
-    bounds = [(int(a), int(b)) for a, b in zip(starts, ends) if b - a >= 2]
-    M = len(bounds)
-    ea, eg = _applied_score(model, rec, bounds)
-    ins = _row(ea, eg[::2], f"first and last samples of all {M} sequences")
-    if not held_out:
-        return ins, None
-    k = max(1, int(round(HELD_OUT_SHARE * M)))
-    if M - k < 2:
-        return ins, {"error": f"{M} sequences: too few for a held-out time split"}
-    cut = bounds[M - k][0]
-    rows = np.arange(rec.n)
-    if log is not None:
-        log(f"held out: refitting {method} on the first {M - k} sequences, scoring the last {k} ...")
-    try:
+
+    def fit_score(train: list, test: list) -> tuple[np.ndarray, np.ndarray]:
+        cut, rows = test[0][0], np.arange(rec.n)
+        if log is not None:
+            log(f"held out: refitting {method} on the first {len(train)} sequences, scoring the last {len(test)} ...")
         sub = methods.fit(method, take_rows(rec, rows < cut), options)
-    except ModelError as e:
-        return ins, {"error": f"time split: {e}"}
-    ea, eg = _applied_score(sub, take_rows(rec, rows >= cut), [(a - cut, b - cut) for a, b in bounds[M - k:]])
-    return ins, _row(ea, eg[::2], f"time split: refitted on the first {M - k} sequences, scored on the last {k} "
-                     "(their first and last samples)")
+        return _applied_score(sub, take_rows(rec, rows >= cut), [(a - cut, b - cut) for a, b in test])
+
+    return _time_split_rows(rec, held_out, lambda bounds: _applied_score(model, rec, bounds), fit_score, "refitted")
 
 
 def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: bool = True,
