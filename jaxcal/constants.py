@@ -9,10 +9,14 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["G0", "ACC_RANGE_G", "GYR_RANGE_DEGS", "GYR_RANGE_RADS", "ACC_LSB_PER_G", "GYR_LSB_PER_DPS", "PHYS_UNIT", "SENSORS"]
+__all__ = ["G0", "EARTH_RATE", "ACC_RANGE_G", "GYR_RANGE_DEGS", "GYR_RANGE_RADS", "ACC_LSB_PER_G", "GYR_LSB_PER_DPS", "PHYS_UNIT", "SENSORS"]
 
 G0 = 9.80665
 """Standard gravity in m/s^2 per g (the conventions' ``g`` unit)."""
+
+EARTH_RATE = 7.292115e-5
+"""The Earth's rotation rate in rad/s (WGS-84): a gyro at rest reads its vertical component
+``EARTH_RATE sin(latitude)`` along the specific force."""
 
 ACC_RANGE_G = 2.0
 """Accelerometer full scale of the thesis's sensors, in g (+-2 g)."""

@@ -133,6 +133,9 @@ OPTION_FLAGS: dict[str, Flag] = {
                           "the rests (4+ poses spanning 3-D), stored as state/gyr/G and applied by `jaxcal apply` "
                           "(which then needs the recording's acc)", const=True,
                           show_default="off"),
+    "latitude": Flag("--latitude", _real(-90.0, 90.0, open_low=False), None, "the rig's latitude in degrees: with "
+                     "--g-sensitivity the vertical Earth rate (15.04 sin(latitude) deg/h, read at rest along gravity) is "
+                     "taken out of G instead of left in its trace", "DEG", show_default="none: left in G"),
     "prior_scale": Flag("--prior-scale", _real(0.0, 10.0), None,
                         "prior std of the relative scale around the datasheet value (sensitivity tolerance)", "S"),
     "prior_cross": Flag("--prior-cross", _real(0.0, 10.0), None, "prior std of the cross-axis terms", "S"),

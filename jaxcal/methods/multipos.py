@@ -7,13 +7,14 @@ state also holds its g-sensitivity ``G`` ((rad/s)/g, ``state/gyr/G``), applied a
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from jaxcal.constants import SENSORS
+from jaxcal.constants import EARTH_RATE, SENSORS
 from jaxcal.methods.base import (
     GSENS_KEY,
     Fitted,
@@ -54,6 +55,10 @@ class MultiposOptions(NamedTuple):
         g_sensitivity: also fit the gyroscope's g-sensitivity ``G`` ((rad/s)/g; stored as
             ``state/gyr/G``, applied with the calibrated accelerometer), jointly with the bias
             from the rests (:func:`~jaxcal.multipos.gyro.rest_gsens`; needs ``gyro_bias="static"``).
+        latitude: the rig's latitude in degrees, or ``None``: with ``g_sensitivity`` the vertical
+            Earth rate (:data:`~jaxcal.constants.EARTH_RATE` ``sin(latitude)``, which the rests read
+            along gravity) is taken out of ``G``; without it ``G``'s trace holds it (at most
+            0.0042 (deg/s)/g).
     """
 
     turns: tuple[tuple[float, float], ...] | None = None
@@ -67,6 +72,7 @@ class MultiposOptions(NamedTuple):
     min_rest: float = 1.0
     rest_window: float = 1.0
     g_sensitivity: bool = False
+    latitude: float | None = None
 
 
 def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
@@ -84,6 +90,8 @@ def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
     if options.g_sensitivity and options.gyro_bias != "static":
         raise ModelError("multipos: --g-sensitivity takes the bias jointly from all rests; it cannot be used with "
                          "--gyro-bias init")
+    if options.latitude is not None and not options.g_sensitivity:
+        raise ModelError("multipos: --latitude takes the Earth's rate out of the --g-sensitivity fit; give both or neither")
     prior = None
     if options.datasheet_prior:
         per = {}
@@ -97,7 +105,8 @@ def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
             per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
         prior = DatasheetPrior(per["acc"], per["gyr"], float(options.prior_scale), float(options.prior_cross))
     return MultiposConfig(acc_model=options.acc_model, gyro_bias=options.gyro_bias, prior=prior,
-                          g_sensitivity=bool(options.g_sensitivity))
+                          g_sensitivity=bool(options.g_sensitivity),
+                          earth_rate_up=0.0 if options.latitude is None else EARTH_RATE * math.sin(math.radians(options.latitude)))
 
 
 def detect_options(rec: Recording, options: MultiposOptions) -> DetectOptions:

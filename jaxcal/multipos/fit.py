@@ -45,6 +45,10 @@ class MultiposConfig(NamedTuple):
             rests' regression, held fixed in the gyro fit; trace included) or ``"transitions"``
             (``G_s`` fitted from the carried gravity, an independent estimate whose trace the
             transitions do not determine; bias still from the rests' regression).
+        earth_rate_up: the vertical component of the Earth's rate at the rig, rad/s
+            (``EARTH_RATE sin(latitude)``): at rest the gyro reads it along the specific force, so the
+            rests' ``G_s`` holds it as ``earth_rate_up I`` per g; it is taken out of the reported
+            ``G_s`` (0: left in, at most 0.0042 (deg/s)/g).
         midpoint: midpoint rates (else the left sample, zero-order hold).
         max_steps: LM iteration cap.
         prior: optional :class:`~jaxcal.multipos.acc.DatasheetPrior` (MAP on scales and
@@ -67,6 +71,7 @@ class MultiposConfig(NamedTuple):
     acc_fit: str = "full"
     gyr_fit: str = "full"
     gsens_from: str = "rests"
+    earth_rate_up: float = 0.0
 
 
 class MultiposFit(NamedTuple):
@@ -177,7 +182,7 @@ def fit_prepared(
     if fit_gs:
         gs = sol.value[9:18].reshape(3, 3)
     else:
-        gs = jnp.zeros((3, 3), dtype) if h is None else g @ h
+        gs = jnp.zeros((3, 3), dtype) if h is None else g @ h - config.earth_rate_up * jnp.eye(3, dtype=dtype)
     gyr_cost = jnp.sum(gyr_residuals(sol.value, args._replace(prior=None)) ** 2)
     return MultiposFit(acc, LinearCal(g, bg), gs, acc_cost, gyr_cost)
 
