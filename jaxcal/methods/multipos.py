@@ -27,11 +27,21 @@ from jaxcal.methods.base import (
     require_both,
     units,
 )
-from jaxcal.multipos import DatasheetPrior, DetectOptions, MultiposConfig, detect_and_fit, fit_multipos_recording, leave_poses_out, prepare
+from jaxcal.multipos import (
+    OBSERVABLE_TOL,
+    DatasheetPrior,
+    DetectOptions,
+    MultiposConfig,
+    detect_and_fit,
+    fit_multipos_recording,
+    leave_poses_out,
+    observability,
+    prepare,
+)
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "detect_options", "fit", "heldout", "multipos_config"]
+__all__ = ["METHOD", "MultiposOptions", "detect_options", "determined_folds", "fit", "heldout", "multipos_config"]
 
 
 class MultiposOptions(NamedTuple):
@@ -178,7 +188,8 @@ def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | 
     every fold fitted in one ``vmap``): each pose's ``| |f| - 1 g |`` from the fit that left it out
     (RMS, mg), and each usable transition's carried-gravity angle from the fit that left it out
     (median, deg). The poses are those the fit detected; turns (``--turns``) are not used by the
-    folds. With ``--g-sensitivity`` every fold fits ``G`` too. With ``--partial`` the folds fit what the whole fit did (``meta["fit_quality"]["partial"]``).
+    folds. With ``--g-sensitivity`` every fold fits ``G`` too. Folds that leave the fit undetermined
+    (:func:`determined_folds`) are not scored; ``not_held_out`` lists their poses and transitions. With ``--partial`` the folds fit what the whole fit did (``meta["fit_quality"]["partial"]``).
 
     Args:
         rec: the recording the model was fitted on.
@@ -193,16 +204,47 @@ def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | 
         config = config._replace(gyr_fit="none")
     det = detect_options(rec, options)
     try:
-        _, iv, _ = detect_and_fit(rec.t, rec.acc, rec.gyr, config, detect=det, check=False)
+        whole, iv, _ = detect_and_fit(rec.t, rec.acc, rec.gyr, config, detect=det, check=False)
         data = prepare(rec.t, rec.acc, rec.gyr, iv, gyr_limit=det.gyr_limit, midpoint=config.midpoint)
         ho = leave_poses_out(data, config)
     except ValueError as e:
         raise ModelError(f"multipos held out: {e}") from None
-    eg = ho.gyr_err[np.isfinite(ho.gyr_err)]
-    return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ho.acc_err**2))),
+    acc_ok, gyr_ok = determined_folds(data, whole, ho)
+    ea = ho.acc_err[acc_ok]
+    eg = ho.gyr_err[gyr_ok & np.isfinite(ho.gyr_err)]
+    how = f"leave-one-pose-out, {ea.size} poses, {eg.size} transitions"
+    skipped = [f"{n} {what}{'s' if n > 1 else ''}" for n, what in ((int((~acc_ok).sum()), "pose"),
+                                                                  (int((~gyr_ok).sum()), "transition")) if n]
+    if skipped:
+        how += (f"; {' and '.join(skipped)} not held out: without one of them the others do not determine the fit "
+                "(relative singular value below OBSERVABLE_TOL), so its score would be an extrapolation")
+    return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))) if ea.size else None,
             "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None,
-            "how": f"leave-one-pose-out, {len(ho.acc_err)} poses, {eg.size} transitions"
-            + ("; turns not used by the folds" if options.turns else "")}
+            "how": how + ("; turns not used by the folds" if options.turns else ""),
+            "not_held_out": {"poses": np.flatnonzero(~acc_ok).tolist(), "transitions": np.flatnonzero(~gyr_ok).tolist()}}
+
+
+def determined_folds(data: Any, whole: Any, ho: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Which leave-one-out folds of :func:`jaxcal.multipos.leave_poses_out` (one pose and one
+    transition per fold) still determine the fit: ``(acc_ok (P,), gyr_ok (J,))``, from
+    :func:`jaxcal.multipos.observability` at the whole fit with that pose (transition) left out.
+    A pose whose fold is undetermined (e.g. the only pose with one axis down, as in a six-face
+    Ferraris session) is scored by an extrapolation, not a calibration.
+
+    Args:
+        data: the prepared poses and transitions.
+        whole: the fit on all of them (:class:`~jaxcal.multipos.MultiposFit`).
+        ho: the folds' scores (:class:`~jaxcal.multipos.HeldOut`).
+    """
+    P, J = len(ho.acc_err), len(ho.gyr_err)
+    acc_ok, gyr_ok = np.ones(P, bool), np.ones(J, bool)
+    for k in range(P):
+        aw = (ho.pose_fold != ho.pose_fold[k]).astype(np.float64)
+        acc_ok[k] = observability(data, whole.acc, whole.gyr, acc_w=aw).acc_sv.min() >= OBSERVABLE_TOL
+    for j in range(J):
+        gw = (ho.trans_fold != ho.trans_fold[j]).astype(np.float64)
+        gyr_ok[j] = observability(data, whole.acc, whole.gyr, gyr_w=gw).gyr_sv.min() >= OBSERVABLE_TOL
+    return acc_ok, gyr_ok
 
 
 METHOD = Method(
