@@ -182,7 +182,7 @@ def rest_gyr_baseline(gyr: np.ndarray, acc: np.ndarray, still: np.ndarray, gate:
         gate: residual norm below which a sample always counts as rest (gyro units).
         steps: trimming rounds.
     """
-    x = np.concatenate([np.ones((len(acc), 1)), acc / np.linalg.norm(acc, axis=1, keepdims=True)], 1)
+    x = np.concatenate([np.ones((len(acc), 1)), acc / np.maximum(np.linalg.norm(acc, axis=1, keepdims=True), 1e-300)], 1)
     base = np.broadcast_to(np.median(gyr[still], axis=0), gyr.shape)
     for _ in range(steps):
         r = np.linalg.norm(gyr - base, axis=1)
