@@ -57,7 +57,7 @@ from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.simulate import RichConfig, motion
 from jaxcal.methods.diagnosed import apply as diagnosed_apply
 from jaxcal.methods.diagnosed import diagnosed_model_state
-from jaxcal.recording import Recording, load_recording, recording_from_dict
+from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, load_recording, recording_from_dict
 
 __all__ = ["EFFECTS", "simulate", "oracle_state", "run_effect", "run", "markdown", "REAL_RECORDINGS", "REAL_PAIRS",
            "REAL_PAIRS_QUICK", "half", "without", "run_real", "real_markdown", "main"]
@@ -250,7 +250,6 @@ README_CHECKS = {  # the dataset READMEs' independent checks (cross-correlation,
     "TUM-VI room1 1st half": {"tau_s": 0.0, "r_m": [0.002, -0.014, -0.003]},
     "TUM-VI room1 2nd half": {"tau_s": 0.0, "r_m": [0.002, -0.014, -0.003]},
 }
-_PER_SAMPLE = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref", "mag", "ref_valid", "section")
 
 
 def half(rec: Recording, k: int) -> Recording:
@@ -265,7 +264,7 @@ def half(rec: Recording, k: int) -> Recording:
     t = np.asarray(rec.t)
     mid = 0.5 * (t[0] + t[-1])
     m = (t < mid) if k == 0 else (t >= mid)
-    ch = {f: np.asarray(getattr(rec, f))[m] for f in _PER_SAMPLE if getattr(rec, f) is not None}
+    ch = {f: np.asarray(getattr(rec, f))[m] for f in PER_SAMPLE_FIELDS if getattr(rec, f) is not None}
     if rec.gt_t is not None:
         g = (rec.gt_t >= ch["t"][0] - 0.05) & (rec.gt_t <= ch["t"][-1] + 0.05)
         ch.update(gt_t=np.asarray(rec.gt_t)[g], gt_pos=None if rec.gt_pos is None else np.asarray(rec.gt_pos)[g],

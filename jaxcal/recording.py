@@ -88,6 +88,8 @@ __all__ = [
     "recording_from_dict",
     "validate_recording",
     "sequence_slices",
+    "PER_SAMPLE_FIELDS",
+    "take_rows",
     "check_plausible",
     "implausible",
     "atomic_output",
@@ -658,6 +660,23 @@ def check_plausible(rec: Recording, source: str = "") -> None:
         why = None if x is None else implausible(s, x, "in the labels")
         if why:
             raise _fail(source, f"key '{key}': {why}; labels must be in {PHYS_UNIT[s]}")
+
+
+PER_SAMPLE_FIELDS = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref", "mag",
+                     "ref_valid", "section")
+"""The fields with one row per sample (``t``'s length), which :func:`take_rows` cuts."""
+
+
+def take_rows(rec: Recording, mask: np.ndarray) -> Recording:
+    """The recording restricted to the rows where ``mask`` is true (per-sample fields only; extras
+    and reference tracks dropped).
+
+    Args:
+        rec: the recording.
+        mask: (N,) bool.
+    """
+    changes = {f: np.asarray(getattr(rec, f))[mask] for f in PER_SAMPLE_FIELDS if getattr(rec, f) is not None}
+    return rec.replace(**changes, extra={}, gt_t=None, gt_pos=None, gt_quat=None)
 
 
 def sequence_slices(rec: Recording) -> list[slice]:

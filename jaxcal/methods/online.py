@@ -30,7 +30,7 @@ from jaxcal.methods.base import (
 )
 from jaxcal.multipos.acc import ellipsoid_init
 from jaxcal.online import OnlineHP, fit_online_recording
-from jaxcal.recording import Recording, sequence_slices
+from jaxcal.recording import Recording, sequence_slices, take_rows
 from jaxcal.sensor import Diag, LinearCal
 from jaxcal.sequences import sequence_bounds
 from jaxcal.static import detect_static
@@ -336,7 +336,6 @@ def seq_split_quality(method: str, rec: Recording, options: Any, model: Any, *, 
         ``(in_sample, held_out)`` rows (``held_out`` ``None`` when not asked for).
     """
     from jaxcal import methods  # the registry imports this module
-    from jaxcal.methods.summary import take_rows
 
     if rec.seq is None:
         raise ModelError(f"{method}: the sequences' score needs seq ids")

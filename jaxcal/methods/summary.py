@@ -23,26 +23,12 @@ import numpy as np
 
 from jaxcal.constants import SENSORS
 from jaxcal.methods.base import GSENS_KEY, REF_KEY, Log, ModelError, holdout_mask, recording_spec, rms
-from jaxcal.recording import Recording
+from jaxcal.recording import Recording, take_rows
 
-__all__ = ["describe", "labelled_quality", "linear_parameters", "summary_lines", "take_rows"]
+__all__ = ["describe", "labelled_quality", "linear_parameters", "summary_lines"]
 
-_PER_SAMPLE = ("t", "acc", "gyr", "temp", "seq", "static", "acc_ref", "gyr_ref", "pos_ref", "quat_ref", "mag",
-               "ref_valid", "section")
 _BIAS_UNIT = {"acc": ("mg", 1e3), "gyr": ("deg/s", 180.0 / math.pi)}
 _RMS_KEY = {"acc": ("acc_rms_mg", 1e3), "gyr": ("gyr_rms_degs", 180.0 / math.pi)}
-
-
-def take_rows(rec: Recording, mask: np.ndarray) -> Recording:
-    """The recording restricted to the rows where ``mask`` is true (per-sample fields only; extras
-    and reference tracks dropped).
-
-    Args:
-        rec: the recording.
-        mask: (N,) bool.
-    """
-    changes = {f: np.asarray(getattr(rec, f))[mask] for f in _PER_SAMPLE if getattr(rec, f) is not None}
-    return rec.replace(**changes, extra={}, gt_t=None, gt_pos=None, gt_quat=None)
 
 
 def linear_parameters(S: np.ndarray, b: np.ndarray, sensor: str, nominal: np.ndarray | None,
