@@ -270,7 +270,8 @@ def _with_reader(bag: Path, kind: str, fn: Callable[[Any], Any]) -> Any:
     except ReaderError:
         raise
     except KeyError as e:  # rosbags maps a definition's encoding; rosbag2 writes "unknown" when it had none
-        if kind == "ros1" or not isinstance(e.args[0] if e.args else None, str):
+        key = e.args[0] if e.args else None
+        if kind == "ros1" or not isinstance(key, str) or "/" in key:  # a type name, not an encoding
             raise ReaderError(f"{bag}: not a readable ROS bag ({_one_line(e)})") from None
         raise ReaderError(f"{bag}: a message definition has the encoding {e.args[0]!r} (rosbag2 writes 'unknown' when "
                           "it lacked a type's definition), which rosbags cannot read; for sqlite3 run "
