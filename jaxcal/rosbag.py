@@ -1,8 +1,10 @@
 """ROS bags (ROS1 ``.bag``, ROS2 sqlite3 and MCAP) -> :class:`jaxcal.recording.Recording`.
 
-``jaxcal import rosbag BAG --imu-topic T [--pose-topic P] [--pose-frame F]`` reads one bag with the
-pure-Python ``rosbags`` library (no ROS installation): a ROS1 ``.bag`` file, a ROS2 bag directory
-(``metadata.yaml`` with sqlite3 or MCAP storage), or a bare ROS2 ``.mcap`` / ``.db3`` file.
+``jaxcal import rosbag BAG [BAG ...] --imu-topic T [--pose-topic P] [--pose-frame F]`` reads one bag
+with the pure-Python ``rosbags`` library (no ROS installation): a ROS1 ``.bag`` file, a ROS2 bag
+directory (``metadata.yaml`` with sqlite3 or MCAP storage; its split files are read together), or a
+bare ROS2 ``.mcap`` / ``.db3`` file. Several ROS1 ``.bag`` files are the parts of one split recording
+(``rosbag record --split``): their messages are merged by time, in any order the files are given.
 
 What maps to what (CONVENTIONS.md):
 
@@ -28,7 +30,7 @@ What maps to what (CONVENTIONS.md):
   IMU times (``pos_ref``, ``quat_ref``, ``ref_valid`` False across gaps over ``max_gap`` s and
   outside the track) and kept as ``gt_t`` / ``gt_pos`` / ``gt_quat``.
 * ``extra``: ``meta_bag_kind`` (``"ros1"``, ``"ros2-sqlite3"``, ``"ros2-mcap"``),
-  ``meta_imu_topic``, ``meta_imu_frame_id``, ``meta_time_source`` (``"header"`` / ``"receive"``),
+  ``meta_bag_files`` (the number of files read: more than 1 for a split ROS1 recording), ``meta_imu_topic``, ``meta_imu_frame_id``, ``meta_time_source`` (``"header"`` / ``"receive"``),
   and with a pose ``meta_pose_topic``, ``meta_pose_frame_id`` (parent), ``meta_pose_child_frame_id``
   (where the message type has one).
 
@@ -102,7 +104,7 @@ def _topic_list(topics: dict[str, Any], want: Sequence[str] | None = None) -> st
     return text + (f", and {len(items) - _LIST_AT_MOST} more" if len(items) > _LIST_AT_MOST else "")
 
 
-def _check_topic(bag: Path, topics: dict[str, Any], topic: str, flag: str, types: Sequence[str]) -> str:
+def _check_topic(bag: str, topics: dict[str, Any], topic: str, flag: str, types: Sequence[str]) -> str:
     """The topic's message type, after checking it exists, has one allowed type and holds messages."""
     if topic not in topics:
         raise ReaderError(f"{bag}: {flag} {topic!r} not found; the bag has {_topic_list(topics)}")
@@ -165,7 +167,7 @@ def _frame(name: str) -> str:
     return name.lstrip("/")
 
 
-def _messages(reader: Any, bag: Path, topic: str, flag: str) -> Any:
+def _messages(reader: Any, bag: str, topic: str, flag: str) -> Any:
     """``(receive ns, message)`` of one topic, deserialisation errors as one-line ReaderErrors."""
     conns = [c for c in reader.connections if c.topic == topic]
     try:
@@ -175,7 +177,7 @@ def _messages(reader: Any, bag: Path, topic: str, flag: str) -> Any:
         raise ReaderError(f"{bag}: {flag} {topic!r}: cannot read its messages ({_one_line(e)})") from None
 
 
-def _imu(reader: Any, bag: Path, topic: str, time: str) -> dict[str, Any]:
+def _imu(reader: Any, bag: str, topic: str, time: str) -> dict[str, Any]:
     ns, rows, no_acc, no_gyr, frames = [], [], True, True, set()
     for t_recv, m in _messages(reader, bag, topic, "--imu-topic"):
         ns.append(_stamp_ns(m.header) if time == "header" else t_recv)
@@ -203,7 +205,7 @@ def _imu(reader: Any, bag: Path, topic: str, time: str) -> dict[str, Any]:
     return rec
 
 
-def _pose(reader: Any, bag: Path, topic: str, msgtype: str, pose_frame: str | None, time: str,
+def _pose(reader: Any, bag: str, topic: str, msgtype: str, pose_frame: str | None, time: str,
           ns0: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, str]]:
     where = f"{bag}: --pose-topic {topic!r}"
     has_child = msgtype in ("geometry_msgs/msg/TransformStamped", "nav_msgs/msg/Odometry", *_TF_TYPES)
@@ -238,8 +240,8 @@ def _pose(reader: Any, bag: Path, topic: str, msgtype: str, pose_frame: str | No
     return (stamps - ns0) / 1e9, vals[:, :3], q, meta
 
 
-def _open(bag: Path, kind: str) -> Any:
-    """An open ``rosbags`` AnyReader (the caller closes it)."""
+def _open(paths: Sequence[Path], bag: str, kind: str) -> Any:
+    """An open ``rosbags`` AnyReader over ``paths`` (the caller closes it)."""
     try:
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
@@ -248,25 +250,46 @@ def _open(bag: Path, kind: str) -> Any:
     # Used only for a ROS2 bag without embedded message definitions (rosbag2 before Iron); the
     # sensor_msgs / geometry_msgs / tf2_msgs / nav_msgs layouts are the same in every ROS2 release.
     default = get_typestore(Stores.ROS1_NOETIC if kind == "ros1" else Stores.ROS2_HUMBLE)
-    reader = AnyReader([bag], default_typestore=default)
+    reader = AnyReader(list(paths), default_typestore=default)
     reader.open()
     return reader
 
 
-def bag_topics(path: str | Path) -> dict[str, tuple[str | None, int]]:
-    """The topics of a bag: ``topic -> (message type, message count)`` (type None: mixed types).
+def _bag_paths(path: str | Path | Sequence[str | Path]) -> tuple[list[Path], str, str]:
+    """``(paths, label, kind)``: one bag, or the ROS1 parts of one split recording.
+
+    ``label`` names the bag in messages: its path, or the first part's with ``(+N more parts)``.
+    """
+    paths = [Path(path)] if isinstance(path, (str, Path)) else [Path(p) for p in path]
+    if not paths:
+        raise ReaderError("no bag path given")
+    kinds = [_bag_kind(p) for p in paths]
+    label = str(paths[0]) if len(paths) == 1 else f"{paths[0]} (+{len(paths) - 1} more parts)"
+    if len(paths) > 1:
+        if any(k != "ros1" for k in kinds):
+            others = sorted({str(p) for p, k in zip(paths, kinds) if k != "ros1"})
+            raise ReaderError(f"{label}: several paths are read as the parts of one split ROS1 recording (.bag files); "
+                              f"{', '.join(others)} is not one (a ROS2 bag directory reads its own split files): "
+                              "give one ROS2 bag")
+        if len({p.resolve() for p in paths}) < len(paths):
+            raise ReaderError(f"{label}: a bag file is given twice")
+    return paths, label, kinds[0]
+
+
+def bag_topics(path: str | Path | Sequence[str | Path]) -> dict[str, tuple[str | None, int]]:
+    """The topics of a bag (or of a split ROS1 recording's parts together):
+    ``topic -> (message type, message count)`` (type None: mixed types).
 
     Raises:
         ReaderError: not a readable ROS bag.
     """
-    bag = Path(path)
-    kind = _bag_kind(bag)
-    return _with_reader(bag, kind, lambda r: {k: (v.msgtype, int(v.msgcount)) for k, v in r.topics.items()})
+    paths, label, kind = _bag_paths(path)
+    return _with_reader(paths, label, kind, lambda r: {k: (v.msgtype, int(v.msgcount)) for k, v in r.topics.items()})
 
 
-def _with_reader(bag: Path, kind: str, fn: Callable[[Any], Any]) -> Any:
+def _with_reader(paths: Sequence[Path], bag: str, kind: str, fn: Callable[[Any], Any]) -> Any:
     try:
-        reader = _open(bag, kind)
+        reader = _open(paths, bag, kind)
     except ReaderError:
         raise
     except KeyError as e:  # rosbags maps a definition's encoding; rosbag2 writes "unknown" when it had none
@@ -286,7 +309,7 @@ def _with_reader(bag: Path, kind: str, fn: Callable[[Any], Any]) -> Any:
 
 
 def read_rosbag(
-    path: str | Path,
+    path: str | Path | Sequence[str | Path],
     imu_topic: str,
     *,
     pose_topic: str | None = None,
@@ -300,7 +323,8 @@ def read_rosbag(
 
     Args:
         path: a ROS1 ``.bag`` file, a ROS2 bag directory (sqlite3 or MCAP storage), or a bare ROS2
-            ``.mcap`` / ``.db3`` file.
+            ``.mcap`` / ``.db3`` file; or a sequence of ROS1 ``.bag`` files, the parts of one split
+            recording (merged by time; their order does not matter).
         imu_topic: the ``sensor_msgs/msg/Imu`` topic.
         pose_topic: optional reference pose topic (PoseStamped, PoseWithCovarianceStamped,
             TransformStamped, Odometry, tf2_msgs TFMessage or tf tfMessage); None: no pose.
@@ -310,15 +334,15 @@ def read_rosbag(
         max_gap: longest pose spacing interpolated across (s).
 
     Raises:
-        ReaderError: a missing path, not a bag, a missing topic (the message lists the bag's
+        ReaderError: a missing path, not a bag, several paths that are not all ROS1 ``.bag`` files
+            (or one given twice), a missing topic (the message lists the bag's
             topics), a wrong message type, an empty topic, fewer than two samples, conflicting
             samples with one stamp, a non-unit quaternion.
         RecordingError: the result breaks the conventions (e.g. implausible values).
     """
-    bag = Path(path)
+    paths, bag, kind = _bag_paths(path)
     if time not in TIME_SOURCES:
         raise ReaderError(f"{bag}: time source {time!r}; expected one of {list(TIME_SOURCES)}")
-    kind = _bag_kind(bag)
 
     def read(reader: Any) -> dict[str, Any]:
         topics = reader.topics
@@ -326,6 +350,7 @@ def read_rosbag(
         pose_type = None if pose_topic is None else _check_topic(bag, topics, pose_topic, "--pose-topic", POSE_TYPES)
         rec = _imu(reader, bag, imu_topic, time)
         rec["meta_bag_kind"] = kind
+        rec["meta_bag_files"] = np.int64(len(paths))
         if pose_type is not None:
             tg, pos, q, meta = _pose(reader, bag, pose_topic, pose_type, pose_frame, time, int(rec["t0_ns"]))
             attach_pose(rec, tg, pos, q, max_gap, f"{bag}: --pose-topic {pose_topic!r}")
@@ -334,4 +359,4 @@ def read_rosbag(
             raise ReaderError(f"{bag}: --pose-frame {pose_frame!r} needs --pose-topic")
         return rec
 
-    return finish_recording(_with_reader(bag, kind, read), f"{bag}: --imu-topic {imu_topic!r}")
+    return finish_recording(_with_reader(paths, bag, kind, read), f"{bag}: --imu-topic {imu_topic!r}")

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from jaxcal import rosbag
 from jaxcal.cli import main
 from jaxcal.readers import read
 from jaxcal.recording import Recording, load_recording
@@ -370,7 +371,10 @@ def test_path_and_flag_errors(bags, tmp_path, capsys):
     (tmp_path / "folder").mkdir()
     refused(capsys, ["import", "rosbag", tmp_path / "folder", *topic], out, "not a ROS2 bag directory (no metadata.yaml)")
     refused(capsys, ["import", "rosbag", bags["ros1"], "--out", out], out, "needs --imu-topic")
-    refused(capsys, ["import", "rosbag", bags["ros1"], bags["mcap"], *topic], out, "takes one BAG path")
+    refused(capsys, ["import", "rosbag", bags["ros1"], bags["mcap"], *topic], out,
+            "parts of one split ROS1 recording", f"{bags['mcap']} is not one")
+    refused(capsys, ["import", "rosbag", bags["mcap"], bags["sqlite3"], *topic], out, "give one ROS2 bag")
+    refused(capsys, ["import", "rosbag", bags["ros1"], bags["ros1"], *topic], out, "a bag file is given twice")
     refused(capsys, ["import", "rosbag", bags["ros1"], "--fs", "100", *topic], out, "does not take --fs")
     refused(capsys, ["import", "rosbag", bags["ros1"], "--imu-topic", "/imu0", "--pose-frame", "body", "--out", out], out,
             "needs --pose-topic")
@@ -411,6 +415,39 @@ def test_damaged_bags_never_traceback(bags, tmp_path, capsys):
                 assert not out.exists()
             else:
                 assert load_recording(out).n >= 2
+
+
+@pytest.mark.parametrize("order", [(0, 1, 2), (2, 0, 1)])
+def test_split_ros1_recording_reads_as_the_whole(tmp_path, capsys, order):
+    """``rosbag record --split``: the parts, given in any order, import exactly as the unsplit bag,
+    the pose track too (interpolated across the cut between parts)."""
+    tr = Truth(3)
+    ts = _typestore("ros1")
+    imu, mocap = tr.imu_msgs(ts), tr.pose_msgs(ts, "geometry_msgs/msg/PoseStamped")
+    whole = write_bag(tmp_path / "whole", "ros1", {"/imu0": ("sensor_msgs/msg/Imu", imu),
+                                                   "/mocap": ("geometry_msgs/msg/PoseStamped", mocap)})
+    cut_ns = [int(tr.recv[N // 3]), int(tr.recv[2 * N // 3])]  # parts split by receive time, as rosbag does
+
+    def part(msgs: list, k: int) -> list:
+        lo, hi = ([0] + cut_ns)[k], (cut_ns + [2**62])[k]
+        return [(t, m) for t, m in msgs if lo <= t < hi]
+
+    parts = [write_bag(tmp_path / f"run_{k}", "ros1", {"/imu0": ("sensor_msgs/msg/Imu", part(imu, k)),
+                                                       "/mocap": ("geometry_msgs/msg/PoseStamped", part(mocap, k))})
+             for k in range(3)]
+    assert all(0 < rosbag.bag_topics(p)["/imu0"][1] < N for p in parts)
+    assert rosbag.bag_topics(parts)["/imu0"] == ("sensor_msgs/msg/Imu", N)
+    recs = []
+    for i, paths in enumerate(([whole], [parts[k] for k in order])):
+        out = tmp_path / f"rec{i}.npz"
+        code, err = run(capsys, "import", "rosbag", *paths, "--imu-topic", "/imu0", "--pose-topic", "/mocap", "--out", out)
+        assert code == 0, err
+        recs.append(load_recording(out))
+    a, b = recs
+    for name in ("t", "acc", "gyr", "gt_t", "gt_pos", "gt_quat", "pos_ref", "quat_ref", "ref_valid"):
+        np.testing.assert_array_equal(getattr(b, name), getattr(a, name), err_msg=name)
+    assert a.t0 == b.t0 and int(a.extra["meta_bag_files"]) == 1 and int(b.extra["meta_bag_files"]) == 3
+    np.testing.assert_array_equal(b.acc, tr.acc / G0)  # and both equal what was written
 
 
 # ----------------------------------------------------------------------------- a second implementation: TUM-VI

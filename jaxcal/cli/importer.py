@@ -31,9 +31,9 @@ def _add_import(p: argparse.ArgumentParser) -> None:
         metavar="FORMAT",
         help="imu_tk (ACC GYR files), imucal (CSV [sections.json]; needs --fs), euroc / tumvi (IMU CSV "
         "[pose CSV]), mpu6050, fusion (x-io), broad (BROAD trial .mat), csv (generic; needs --columns), "
-        "rosbag (one ROS1 .bag, ROS2 bag directory or .mcap; needs --imu-topic)",
+        "rosbag (a ROS1 .bag or the .bag parts of a split recording, a ROS2 bag directory or .mcap; needs --imu-topic)",
     )
-    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format (rosbag: one BAG path)")
+    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format (rosbag: one BAG path, or the ROS1 .bag parts of one split recording)")
     p.add_argument("--out", required=True, metavar="REC.npz", help="recording to write (.npz or .csv)")
     p.add_argument("--fs", type=_real(0.0, 1e9), default=None, help="sample rate in Hz (imucal, csv without a time column)")
     p.add_argument("--acc-unit", default=None, help="accelerometer unit where the file does not say (imucal)")
@@ -65,12 +65,9 @@ def _flags(names: dict[str, str] | tuple[str, ...], args: argparse.Namespace) ->
 def _read_rosbag(args: argparse.Namespace, csv_flags: list[str]) -> Recording:
     if csv_flags:
         raise UsageError(f"format 'rosbag' does not take {', '.join(csv_flags)}")
-    if len(args.files) != 1:
-        raise UsageError(f"format 'rosbag' takes one BAG path (a ROS1 .bag file, a ROS2 bag directory or an .mcap "
-                         f"file), got {len(args.files)}")
     if args.imu_topic is None:
         raise UsageError("format 'rosbag' needs --imu-topic TOPIC (a sensor_msgs/msg/Imu topic)")
-    return rosbag.read_rosbag(args.files[0], args.imu_topic, pose_topic=args.pose_topic, pose_frame=args.pose_frame,
+    return rosbag.read_rosbag(args.files, args.imu_topic, pose_topic=args.pose_topic, pose_frame=args.pose_frame,
                               time=args.time or "header")
 
 
