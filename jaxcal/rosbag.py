@@ -30,7 +30,8 @@ What maps to what (CONVENTIONS.md):
   IMU times (``pos_ref``, ``quat_ref``, ``ref_valid`` False across gaps over ``max_gap`` s and
   outside the track) and kept as ``gt_t`` / ``gt_pos`` / ``gt_quat``.
 * ``extra``: ``meta_bag_kind`` (``"ros1"``, ``"ros2-sqlite3"``, ``"ros2-mcap"``),
-  ``meta_bag_files`` (the number of files read: more than 1 for a split ROS1 recording), ``meta_imu_topic``, ``meta_imu_frame_id``, ``meta_time_source`` (``"header"`` / ``"receive"``),
+  ``meta_bag_files`` (the number of files read: more than 1 for a split ROS1 recording),
+  ``meta_imu_topic``, ``meta_imu_frame_id``, ``meta_time_source`` (``"header"`` / ``"receive"``),
   and with a pose ``meta_pose_topic``, ``meta_pose_frame_id`` (parent), ``meta_pose_child_frame_id``
   (where the message type has one).
 

@@ -33,7 +33,8 @@ def _add_import(p: argparse.ArgumentParser) -> None:
         "[pose CSV]), mpu6050, fusion (x-io), broad (BROAD trial .mat), csv (generic; needs --columns), "
         "rosbag (a ROS1 .bag or the .bag parts of a split recording, a ROS2 bag directory or .mcap; needs --imu-topic)",
     )
-    p.add_argument("files", nargs="+", metavar="FILE", help="input file(s) in that format (rosbag: one BAG path, or the ROS1 .bag parts of one split recording)")
+    p.add_argument("files", nargs="+", metavar="FILE",
+                   help="input file(s) in that format (rosbag: one BAG path, or the ROS1 .bag parts of one split recording)")
     p.add_argument("--out", required=True, metavar="REC.npz", help="recording to write (.npz or .csv)")
     p.add_argument("--fs", type=_real(0.0, 1e9), default=None, help="sample rate in Hz (imucal, csv without a time column)")
     p.add_argument("--acc-unit", default=None, help="accelerometer unit where the file does not say (imucal)")
