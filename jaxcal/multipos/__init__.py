@@ -85,7 +85,7 @@ from jaxcal.multipos.gyro import (
     rest_gsens,
     vertical_turn_errors,
 )
-from jaxcal.multipos.heldout import HeldOut, fold_ids, leave_poses_out
+from jaxcal.multipos.heldout import HeldOut, fold_batch, fold_ids, leave_poses_out
 from jaxcal.multipos.observe import Observability, check_observable, observability
 from jaxcal.multipos.timesplit import (
     FERRARIS_FACES,
@@ -114,7 +114,7 @@ __all__ = [
     "acc_norm_errors", "gyro_angle_errors", "known_rotation_errors", "vertical_turn_errors",
     "block_rotvecs", "carry_rotation",
     # held-out
-    "HeldOut", "fold_ids", "leave_poses_out",
+    "HeldOut", "fold_batch", "fold_ids", "leave_poses_out",
     "FERRARIS_FACES", "FERRARIS_TURNS", "TimeSplit", "time_split", "whole_sections", "peer_sections",
     "gyro_folds", "split_samples",
 ]
