@@ -157,6 +157,8 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
             out["in_sample"] = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
                                 "how": "all poses and transitions"}
             ho = multipos.heldout(rec, options, model.meta) if held_out else None
+            if ho is not None and options.g_sensitivity:
+                ho["without_g_sensitivity"] = _without_g(multipos, rec, options, model, log)
         elif method == "online":
             ins, ho = online.quality(rec, options, model, held_out=held_out, log=log)
             out["in_sample"] = ins
@@ -177,6 +179,21 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
     if out["held_out"] is None:
         out["held_out"] = {"error": "not computed"}
     return out
+
+
+_G_GAIN = 0.05  # a G fit must cut the held-out carried-gravity median by 5 % to count as an improvement
+
+
+def _without_g(multipos: Any, rec: Recording, options: Any, model: Any, log: Log) -> dict[str, Any]:
+    """The same leave-one-pose-out figure of ``multipos`` without ``--g-sensitivity``, so a user sees
+    whether fitting ``G`` helped this session (on the MPU-6050's 10 poses it does not; results/real.md)."""
+    log("held out without --g-sensitivity, for comparison ...")
+    plain = options._replace(g_sensitivity=False, latitude=None)
+    try:
+        q = multipos.heldout(rec, plain, model.meta)
+    except ModelError as e:
+        return {"error": str(e)}
+    return {k: q[k] for k in ("acc_rms_mg", "gyr_median_deg", "how")}
 
 
 def _fmt3(v: Any, f: str = "+.3f") -> str:
@@ -219,5 +236,15 @@ def summary_lines(desc: Mapping[str, Any]) -> list[str]:
     if "in_sample" in desc:
         lines.append(f"in-sample: {_quality_text(desc['in_sample'])}")
     if "held_out" in desc:
-        lines.append(f"held out: {_quality_text(desc['held_out'])}")
+        ho = desc["held_out"]
+        lines.append(f"held out: {_quality_text(ho)}")
+        plain = ho.get("without_g_sensitivity")
+        if plain is not None:
+            lines.append(f"held out without --g-sensitivity: {_quality_text(plain)}")
+            with_g, without = ho.get("gyr_median_deg"), plain.get("gyr_median_deg")
+            if with_g is not None and without is not None and with_g > (1.0 - _G_GAIN) * without:
+                verdict = "worse" if with_g > (1.0 + _G_GAIN) * without else f"no better (within {_G_GAIN:.0%})"
+                lines.append(f"note: G left the held-out carried-gravity median {verdict}: {with_g:.3f} deg against "
+                             f"{without:.3f} deg without it; this session does not support fitting G: drop "
+                             "--g-sensitivity, or record more poses and rotations (README, recording protocol)")
     return lines
