@@ -41,7 +41,7 @@ def _session() -> Recording:
 
 def test_cli_g_sensitivity_recovers_G_and_improves_the_held_out_figure(tmp_path, capsys):
     """Both fits on one simulated session through the CLI. ~15 s warm (two fits, each with its
-    24 vmapped leave-one-pose-out folds)."""
+    24 leave-one-pose-out folds; the G fit also scores the folds without G)."""
     save_recording(_session(), tmp_path / "mp.npz")
     code, _, err = _run(capsys, "calibrate", "--method", "multipos", tmp_path / "mp.npz", "--out", tmp_path / "plain.npz")
     assert code == 0, err

@@ -185,11 +185,13 @@ def fit(rec: Recording, options: MultiposOptions, log: Log) -> Fitted:
 
 def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Leave-one-pose-out quality of ``multipos`` on ``rec`` (:func:`jaxcal.multipos.leave_poses_out`:
-    every fold fitted in one ``vmap``): each pose's ``| |f| - 1 g |`` from the fit that left it out
-    (RMS, mg), and each usable transition's carried-gravity angle from the fit that left it out
-    (median, deg). The poses are those the fit detected; turns (``--turns``) are not used by the
-    folds. With ``--g-sensitivity`` every fold fits ``G`` too. Folds that leave the fit undetermined
-    (:func:`determined_folds`) are not scored; ``not_held_out`` lists their poses and transitions. With ``--partial`` the folds fit what the whole fit did (``meta["fit_quality"]["partial"]``).
+    every fold fitted inside one compiled ``lax.map``): each pose's ``| |f| - 1 g |`` from the fit
+    that left it out (RMS, mg), and each usable transition's carried-gravity angle from the fit
+    that left it out (median, deg). The poses are those the fit detected; turns (``--turns``) are
+    not used by the folds. With ``--g-sensitivity`` every fold fits ``G`` too. Folds that leave the
+    fit undetermined (:func:`determined_folds`) are not scored; ``not_held_out`` lists their poses
+    and transitions. With ``--partial`` the folds fit what the whole fit did
+    (``meta["fit_quality"]["partial"]``).
 
     Args:
         rec: the recording the model was fitted on.

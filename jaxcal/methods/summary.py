@@ -158,7 +158,7 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
                                 "how": "all poses and transitions"}
             ho = multipos.heldout(rec, options, model.meta) if held_out else None
             if ho is not None and options.g_sensitivity:
-                ho["without_g_sensitivity"] = _without_g(multipos, rec, options, model, log)
+                ho["without_g_sensitivity"] = _without_g(rec, options, model, log)
         elif method == "online":
             ins, ho = online.quality(rec, options, model, held_out=held_out, log=log)
             out["in_sample"] = ins
@@ -184,9 +184,11 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
 _G_GAIN = 0.05  # a G fit must cut the held-out carried-gravity median by 5 % to count as an improvement
 
 
-def _without_g(multipos: Any, rec: Recording, options: Any, model: Any, log: Log) -> dict[str, Any]:
+def _without_g(rec: Recording, options: Any, model: Any, log: Log) -> dict[str, Any]:
     """The same leave-one-pose-out figure of ``multipos`` without ``--g-sensitivity``, so a user sees
     whether fitting ``G`` helped this session (on the MPU-6050's 10 poses it does not; results/real.md)."""
+    from jaxcal.methods import multipos  # the registry imports this module
+
     log("held out without --g-sensitivity, for comparison ...")
     plain = options._replace(g_sensitivity=False, latitude=None)
     try:
