@@ -224,9 +224,20 @@ def _sequence_residuals(
     u_gyr: Float[Array, "N 3"],
     mask: Float[Array, " N"],
     dt: float | Float[Array, ""],
+    weight: Float[Array, " N"] | None = None,
+    weight_t: Float[Array, " N"] | None = None,
 ) -> Float[Array, " 3*N"]:
     """Measurement-space residuals ``u_a,n - K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one sequence
     (spec-converted accelerometer units, ~g), flattened; masked samples give 0.
+
+    ``weight`` (optional, ``None``: the mask) weighs each sample's residual apart from the mask,
+    which also stops the rotation: a sample of weight ``w`` counts as ``w`` samples (its residual is
+    multiplied by ``sqrt(w)``), and weight 0 keeps a sample in the gyro's propagation but out of the
+    fit (:mod:`jaxcal.field`: the motion samples, whose translational acceleration the model lacks).
+    ``weight_t`` (optional, ``None``: ``weight``) weighs the residual's component across the
+    predicted direction apart from the one along it: a rest at the end of a motion knows its
+    ``|f|`` to the accelerometer's noise but its carried direction only to the gyroscope's
+    integration error, which is far larger on real motions (:mod:`jaxcal.field`).
 
     ``f_0 = normalise(f0_ref + B delta)`` with ``B`` the tangent basis at ``f0_ref``. Masked
     (padding) samples contribute no rotation and no residual. The residual is formed where the
@@ -236,7 +247,13 @@ def _sequence_residuals(
     pulls the gyroscope scale off by several standard deviations.
     """
     u_pred = _predict_acc_readings(lay, theta, delta, f0_ref, u_gyr, mask, dt)
-    return ((u_acc - u_pred) * mask[:, None]).reshape(-1)
+    w = mask if weight is None else jnp.sqrt(weight) * mask
+    r = u_acc - u_pred
+    if weight_t is None:
+        return (r * w[:, None]).reshape(-1)
+    d = u_pred / jnp.linalg.norm(u_pred, axis=-1, keepdims=True)
+    r_along = jnp.sum(r * d, axis=-1, keepdims=True) * d
+    return (r_along * w[:, None] + (r - r_along) * (jnp.sqrt(weight_t) * mask)[:, None]).reshape(-1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -338,6 +355,8 @@ def _update(
     mask: Float[Array, " N"],
     dt: float | Float[Array, ""],
     hp: OnlineHP,
+    weight: Float[Array, " N"] | None = None,
+    weight_t: Float[Array, " N"] | None = None,
 ) -> OnlineState:
     """Measurement update with one sequence: iterated GN on (theta, f_0) with the previous
     posterior ``|theta - theta_prev|^2_(Lambda + Lambda_0)`` as prior, then Schur-marginalise
@@ -352,7 +371,7 @@ def _update(
     w_obs = 1.0 / hp.sigma_acc**2
 
     def res(z):
-        return _sequence_residuals(lay, z[:p], z[p:], f0_ref, u_acc, u_gyr, mask, dt)
+        return _sequence_residuals(lay, z[:p], z[p:], f0_ref, u_acc, u_gyr, mask, dt, weight, weight_t)
 
     def cost(z):
         d = z[:p] - theta_p
@@ -401,11 +420,12 @@ class Filter(NamedTuple):
         calibrate_gyr: ``(theta, u) -> w_c`` (rad/s) of spec-converted gyroscope readings.
         predict_acc_readings: ``(theta, delta, f0_ref, u_gyr, mask, dt) -> (N, 3)`` noise-free
             spec-converted accelerometer readings of one sequence.
-        sequence_residuals: ``(theta, delta, f0_ref, u_acc, u_gyr, mask, dt) -> (3 N,)``.
+        sequence_residuals: ``(theta, delta, f0_ref, u_acc, u_gyr, mask, dt, weight=None, weight_t=None)``.
         prior_info: ``(hp, dtype=None) -> Lambda_0``, the datasheet prior information.
         init: ``(hp, dtype=None) -> OnlineState`` at the spec values.
         predict: ``(state, hp) -> state``: forgetting and process noise.
-        update: ``(state, u_acc, u_gyr, mask, dt, hp) -> state``: one sequence.
+        update: ``(state, u_acc, u_gyr, mask, dt, hp, weight=None, weight_t=None) -> state``: one sequence
+            (``weight``: optional per-sample residual weights, :class:`SequenceBatch`).
     """
 
     kind: str
@@ -493,11 +513,19 @@ def to_linear_cal(theta: Float[Array, " Q"], kind: str, acc_spec: Diag, gyr_spec
 
 
 class SequenceBatch(NamedTuple):
-    """Sequences in spec-converted units, padded to a common length ``N`` with a mask (traced)."""
+    """Sequences in spec-converted units, padded to a common length ``N`` with a mask (traced).
+
+    ``weight`` and ``weight_t`` (optional; given together): each sample's residual weights along and
+    across the predicted direction, apart from the mask (see :func:`_sequence_residuals`); a
+    sequence whose weights are all 0 is skipped (no prediction, no update), so one batch of fixed
+    shape serves every held-out fold (:mod:`jaxcal.field`).
+    """
 
     u_acc: Float[Array, "M N 3"]
     u_gyr: Float[Array, "M N 3"]
     mask: Float[Array, "M N"]
+    weight: Float[Array, "M N"] | None = None
+    weight_t: Float[Array, "M N"] | None = None
 
 
 def spec_sequences(acc: Float[Array, "M N 3"], gyr: Float[Array, "M N 3"], acc_spec: Diag, gyr_spec: Diag,
@@ -519,12 +547,23 @@ def _scan(filt: Filter, state0: OnlineState, batch: SequenceBatch, dt: float | F
           hp: OnlineHP) -> tuple[OnlineState, Float[Array, "M Q"]]:
     """``predict`` then ``update`` per sequence, in one ``lax.scan``."""
 
-    def step(state, seq):
-        ua, ug, m = seq
-        state = filt.update(filt.predict(state, hp), ua, ug, m, dt, hp)
+    if batch.weight is None:
+        def step(state, seq):
+            ua, ug, m = seq
+            state = filt.update(filt.predict(state, hp), ua, ug, m, dt, hp)
+            return state, state.theta
+
+        return jax.lax.scan(step, state0, (batch.u_acc, batch.u_gyr, batch.mask))
+
+    def weighted_step(state, seq):
+        ua, ug, m, w, wt = seq
+        new = filt.update(filt.predict(state, hp), ua, ug, m, dt, hp, w, wt)
+        keep = jnp.any(w > 0)
+        state = jax.tree_util.tree_map(lambda a, b: jnp.where(keep, a, b), new, state)
         return state, state.theta
 
-    return jax.lax.scan(step, state0, (batch.u_acc, batch.u_gyr, batch.mask))
+    wt = batch.weight if batch.weight_t is None else batch.weight_t
+    return jax.lax.scan(weighted_step, state0, (batch.u_acc, batch.u_gyr, batch.mask, batch.weight, wt))
 
 
 def online_scan(

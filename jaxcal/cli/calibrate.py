@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -14,7 +15,7 @@ from jaxcal import methods
 from jaxcal.cli.core import Command, UsageError, _check_out_file, _count, _progress, _real, _seed, register_command
 from jaxcal.constants import GYR_RANGE_DEGS, SENSORS
 from jaxcal.methods import CalibrationModel, ModelError
-from jaxcal.methods.summary import describe, summary_lines
+from jaxcal.methods.summary import contradiction, describe, summary_lines
 from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import atomic_output, load_recording
 
@@ -146,7 +147,7 @@ OPTION_FLAGS: dict[str, Flag] = {
                         "SEC"),
     # online
     "kind": Flag("--kind", _choice("affine", "diag"), None, "filter model: affine (scale, cross-axis, bias) or diag "
-                 "(scale, bias)", "affine|diag"),
+                 "(scale, bias)", "affine|diag", show_default="affine with seq ids, diag between rests"),
     "sigma_acc": Flag("--sigma-acc", _real(0.0, 1.0), None, "accelerometer noise std of the filter, in g",
                       "G", show_default="measured at the rests; 1.8e-5 with seq ids"),
     "n_iter": Flag("--n-iter", _count(1, 100), None, "Gauss-Newton iterations per sequence", "N",
@@ -156,6 +157,9 @@ OPTION_FLAGS: dict[str, Flag] = {
     "rest_pad": Flag("--rest-pad", _real(0.0, 1e6), None, "seconds of each rest streamed with the motions around it "
                      "(recordings without seq ids)", "SEC"),
     "folds": Flag("--folds", _count(2, 1000), None, "interleaved rest folds of the held-out figure", "K"),
+    "residuals": Flag("--residuals", _choice("rests", "all"), None, "between rests: the accelerometer residuals at "
+                      "the rests only, or at every sample (the simulation's recipe; motions carry translational "
+                      "acceleration)", "rests|all"),
     # diagnosed
     "baseline": Flag("--baseline", _choice("diag", "affine"), None, "baseline sensor model diagnosed against: diag "
                      "(thesis eq. 4.6) or affine (eq. 2.3), as `jaxcal diagnose --baseline`", "diag|affine"),
@@ -204,6 +208,9 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
                            help=text)
         else:
             g.add_argument(spec.flag, dest=field, default=argparse.SUPPRESS, metavar=spec.metavar, help=text)
+    p.add_argument("--force", action="store_true",
+                   help="write the model even where its own held-out figure or a plausible range contradicts it "
+                        "(with a warning; default: refuse, exit 2)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
 
 
@@ -246,6 +253,12 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         desc = describe(args.method, rec, options, model, log or (lambda msg: None), held_out=args.held_out)
     except ModelError as e:  # the recording does not suit the method: say which file
         raise ModelError(f"{args.recording}: {e}") from None
+    why = contradiction(desc)
+    if why is not None and not args.force:
+        raise ModelError(f"{args.recording}: {args.method}: not written: {why} (--force writes it anyway)")
+    if why is not None:
+        print(f"jaxcal: warning: {args.method}: {why}; written because of --force", file=sys.stderr)
+        desc = {**desc, "contradiction": why}
     model = CalibrationModel(model.method, model.sensors, model.state, {**model.meta, **desc})
     save_model(model, args.out)
     for line in summary_lines(desc):

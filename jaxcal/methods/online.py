@@ -11,9 +11,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcal import field
 from jaxcal import multipos as mp
 from jaxcal.constants import SENSORS
 from jaxcal.methods.base import (
+    GSENS_KEY,
     Fitted,
     Log,
     Method,
@@ -21,6 +23,7 @@ from jaxcal.methods.base import (
     affine_state,
     apply_linear_state,
     check_linear_state,
+    gsens_of,
     linear_state,
     recording_dt,
     recording_spec,
@@ -28,7 +31,6 @@ from jaxcal.methods.base import (
     sequences_of,
     units,
 )
-from jaxcal.multipos.acc import ellipsoid_init
 from jaxcal.online import OnlineHP, fit_online_recording
 from jaxcal.recording import Recording, sequence_slices, take_rows
 from jaxcal.sensor import Diag, LinearCal
@@ -43,8 +45,14 @@ class OnlineOptions(NamedTuple):
     :class:`jaxcal.online.OnlineHP`'s defaults (the prior widened where a datasheet value is
     estimated from the data).
 
+    Without ``seq`` ids the recording is calibrated in the field (:mod:`jaxcal.field`): initialised
+    from its rests, then the filter streamed over its motions with the accelerometer residuals at
+    the rests (``residuals``).
+
     Args:
-        kind: ``"affine"`` (scale, cross-axis, bias) or ``"diag"`` (scale and bias).
+        kind: ``"affine"`` (scale, cross-axis, bias) or ``"diag"`` (scale and bias); ``None``:
+            affine with ``seq`` ids, diag between rests (corrections to the data's initial
+            calibration, which holds the cross-axis terms; ``results/field.md``).
         sigma_acc: accelerometer noise std (g) of the filter; ``None``: measured at the rests of a
             rest-segmented recording, else :class:`~jaxcal.online.OnlineHP`'s.
         n_iter: Gauss-Newton iterations per sequence; ``None``: 4, or 8 on a rest-segmented recording
@@ -58,9 +66,15 @@ class OnlineOptions(NamedTuple):
         rest_window: moving-variance window of the rest detector, seconds.
         rest_pad: seconds of each rest streamed with the motions before and after it.
         folds: interleaved rest (pose) folds of the held-out score (the initial rest is in none).
+        residuals: between rests, where the accelerometer residuals sit: ``"rests"`` (the rests
+            only; the motions' samples carry the gravity through the gyroscope but hold physics
+            the model lacks: translational acceleration, a lever arm, a time offset) or ``"all"``
+            (every sample, the simulation's recipe).
+        g_sensitivity: between rests, also take the gyroscope's g-sensitivity ``G`` from the rests
+            (as ``multipos --g-sensitivity``) and out of the rates the filter integrates.
     """
 
-    kind: str = "affine"
+    kind: str | None = None
     sigma_acc: float | None = None
     n_iter: int | None = None
     forgetting: float = 1.0
@@ -71,6 +85,8 @@ class OnlineOptions(NamedTuple):
     rest_window: float = 1.0
     rest_pad: float = 1.0
     folds: int = 10
+    residuals: str = "rests"
+    g_sensitivity: bool = False
 
 
 class RestSequences(NamedTuple):
@@ -139,8 +155,15 @@ def _hp(options: OnlineOptions, sigma_acc: float | None, segmented: bool) -> Onl
     return hp if sigma is None else hp._replace(sigma_acc=float(sigma))
 
 
+def _kind(options: OnlineOptions, segmented: bool) -> str:
+    """The filter's layout: the option, else ``diag`` between rests and ``affine`` with ``seq`` ids."""
+    return options.kind if options.kind is not None else ("diag" if segmented else "affine")
+
+
 def _check_options(options: OnlineOptions) -> None:
-    if options.kind not in ("affine", "diag"):
+    if options.residuals not in field.RESIDUALS:
+        raise ModelError(f"online: --residuals must be one of {', '.join(field.RESIDUALS)}, got {options.residuals!r}")
+    if options.kind is not None and options.kind not in ("affine", "diag"):
         raise ModelError(f"online: --kind must be affine or diag, got {options.kind!r}")
     if not 0.0 < float(options.forgetting) <= 1.0:
         raise ModelError(f"online: --forgetting must lie in (0, 1], got {options.forgetting}")
@@ -157,11 +180,90 @@ def _fit_segments(rec: Recording, segs: np.ndarray, dt: float, acc_spec: Diag | 
     return fit_online_recording(acc, gyr, seq, dt, acc_spec, gyr_spec, hp, kind)
 
 
+class FieldSetup(NamedTuple):
+    """What the field path needs of a recording without ``seq`` ids (:func:`field_setup`).
+
+    Args:
+        rests: :func:`rest_sequences`.
+        batch: the motions as filter sequences (:func:`jaxcal.field.field_batch`).
+        config: the initial fit's :class:`~jaxcal.multipos.MultiposConfig`.
+        hp: the filter's :class:`~jaxcal.online.OnlineHP` (its ``sigma_acc`` measured at the rests).
+        dt: sample period (s).
+        kind: the filter's layout.
+    """
+
+    rests: RestSequences
+    batch: field.FieldBatch
+    config: mp.MultiposConfig
+    hp: OnlineHP
+    dt: float
+    kind: str
+
+
+def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
+    """Cut a recording without ``seq`` ids between its rests and prepare the field path
+    (:mod:`jaxcal.field`); refuses, in one line, a recording with fewer than two usable motions.
+
+    Args:
+        rec: a recording with ``acc`` and ``gyr`` (no ``seq``).
+        options: :class:`OnlineOptions`.
+    """
+    rests = rest_sequences(rec, options)
+    n_use = int(rests.usable.sum())
+    if n_use < 2:
+        raise ModelError(f"online: no 'seq' ids, and only {n_use} usable motions between {len(rests.intervals)} "
+                         "rests (saturated ones are left out); record more rest-motion-rest sequences")
+    config = mp.MultiposConfig(g_sensitivity=bool(options.g_sensitivity))
+    try:
+        batch = field.field_batch(rec.acc, rec.gyr, rests.intervals, rests.usable)
+    except ValueError as e:
+        raise ModelError(f"online: {e}") from None
+    init = field.rest_init(rests.data, config=config)
+    acc = np.asarray(rec.acc, np.float64)
+    noise = [((acc[a:b] - init.acc.b) @ init.acc.A.T).std(0).mean() for a, b in rests.intervals]
+    hp = _hp(options, float(np.mean(noise)), True)
+    return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True))
+
+
+def _fit_field(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, dict]:
+    """The field path of :func:`fit`: the state and the metadata."""
+    fs = field_setup(rec, options)
+    n_use = int(fs.rests.usable.sum())
+    log(f"online: no 'seq' ids: segmented between {len(fs.rests.intervals)} rests into {n_use} sequences "
+        f"({int((~fs.rests.usable).sum())} saturated motions left out)")
+    log(f"online: initialised from the rests (|f| = 1 g) and the gravity carried between them; streaming the "
+        f"{'every sample' if options.residuals == 'all' else 'rest'} residuals ({fs.kind}) ...")
+    t0 = time.perf_counter()
+    init = field.rest_init(fs.rests.data, config=fs.config)
+    use = fs.rests.usable.astype(np.float64)
+    cal = field.fit_field(fs.batch, init, fs.dt, fs.hp, fs.kind, options.residuals,
+                          sigma_dir=field.carried_sigma(init, fs.rests.data, use))
+    state = {s: linear_state(c)._asdict() for s, c in zip(SENSORS, cal[:2])}
+    if options.g_sensitivity:
+        state["gyr"][GSENS_KEY] = np.asarray(cal.G, np.float64)
+    meta = {
+        "n_sequences": n_use,
+        "sequences_from": "rests",
+        "kind": fs.kind,
+        "residuals": options.residuals,
+        "g_sensitivity": bool(options.g_sensitivity),
+        "sigma_acc": float(fs.hp.sigma_acc),
+        "n_iter": int(fs.hp.n_iter),
+        "dt": fs.dt,
+        "fit_seconds": time.perf_counter() - t0,
+        "spec_from": {"acc": "data (rests: |f| = 1 g)", "gyr": "data (rests and the gravity carried between them)"},
+    }
+    return state, meta
+
+
 def fit(rec: Recording, options: OnlineOptions, log: Log) -> Fitted:
     """Self-calibrate both sensors from the recording's rotation sequences.
 
-    Without ``seq`` ids the recording is cut between its rests (:func:`rest_sequences`) and the
-    filter's accelerometer noise is the one measured there.
+    With ``seq`` ids the filter streams every sample from the datasheet values (or a guess from the
+    data), as on the thesis's Dataset 2. Without them the recording is calibrated in the field
+    (:func:`field_setup`, :mod:`jaxcal.field`): cut between its rests, initialised from them, and
+    streamed with the accelerometer residuals at the rests; datasheet values are not used (a
+    wrong one cannot make it diverge).
 
     Args:
         rec: a recording with ``acc``, ``gyr`` and ``seq`` ids or rests between its motions
@@ -171,70 +273,51 @@ def fit(rec: Recording, options: OnlineOptions, log: Log) -> Fitted:
     """
     require_both(rec, "online")
     _check_options(options)
-    acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
-    rests = None
     if rec.seq is None:
-        rests = rest_sequences(rec, options)
-        segs = rests.segments[rests.usable]
-        if len(segs) < 2:
-            raise ModelError(f"online: no 'seq' ids, and only {len(segs)} usable motions between {len(rests.intervals)} "
-                             "rests (saturated ones are left out); record more rest-motion-rest sequences")
-        n_seq = len(segs)
-        log(f"online: no 'seq' ids: segmented between {len(rests.intervals)} rests into {n_seq} sequences "
-            f"({int((~rests.usable).sum())} saturated motions left out)")
+        state, meta = _fit_field(rec, options, log)
+        meta = {"units": units(rec, SENSORS), **meta}
     else:
-        seq = sequences_of(rec, "online")
-        n_seq = len(sequence_slices(rec))
-    dt = recording_dt(rec)
-    spec_from = {s: ("metadata" if sp is not None else "data") for s, sp in (("acc", acc_spec), ("gyr", gyr_spec))}
-    if rests is not None and acc_spec is None:
-        acc_spec, spec_from["acc"] = _rest_acc_spec(rests), "rests (ellipsoid through the rest means)"
-    hp = _hp(options, None if rests is None else rests.sigma_acc / _acc_scale(acc_spec, rec), rests is not None)
-    log(f"fitting online on {n_seq} sequences ({rec.n} samples, dt {dt:g} s) ...")
-    t0 = time.perf_counter()
-    try:
-        if rests is None:
-            cals = fit_online_recording(np.asarray(rec.acc, np.float64), np.asarray(rec.gyr, np.float64), seq, dt,
-                                        acc_spec, gyr_spec, hp, options.kind)
-        else:
-            cals = _fit_segments(rec, segs, dt, acc_spec, gyr_spec, hp, options.kind)
-    except ValueError as e:
-        raise ModelError(f"online: {e}") from None
-    elapsed = time.perf_counter() - t0
-    state = {s: linear_state(cal) for s, cal in zip(SENSORS, cals)}
+        if options.g_sensitivity or options.residuals != "rests":
+            raise ModelError("online: --g-sensitivity and --residuals apply between rests (a recording without 'seq' "
+                             "ids); this one has seq ids")
+        state, meta = _fit_seq(rec, options, log)
     for s, m in state.items():
-        if not (np.all(np.isfinite(m.S)) and np.all(np.isfinite(m.b))):
+        vals = m._asdict().values() if hasattr(m, "_asdict") else m.values()
+        if not all(np.all(np.isfinite(np.asarray(v, np.float64))) for v in vals):
             raise ModelError(f"online: the {s} estimate is not finite (does the recording hold rotation sequences?)")
-    log(f"fitting online ... done in {elapsed:.1f} s")
-    meta = {
-        "units": units(rec, SENSORS),
-        "n_sequences": n_seq,
-        "sequences_from": "seq" if rests is None else "rests",
-        "kind": options.kind,
-        "sigma_acc": float(hp.sigma_acc),
-        "n_iter": int(hp.n_iter),
-        "dt": dt,
-        "fit_seconds": elapsed,
-        "spec_from": spec_from,
-    }
+    log(f"fitting online ... done in {meta['fit_seconds']:.1f} s")
     return Fitted(SENSORS, state, meta)
 
 
-def _rest_acc_spec(rests: RestSequences) -> Diag:
-    """A datasheet-like accelerometer model from the rests: the axis-aligned ellipsoid through the
-    rest means (:func:`jaxcal.multipos.acc.ellipsoid_init`), for a recording without datasheet values
-    (raw offsets such as unsigned 16-bit ones defeat the filter's own guess, bias 0)."""
-    with jax.enable_x64(True):
-        pa = jnp.asarray(rests.data.pose_acc, jnp.float64)
-        c, r = ellipsoid_init(pa, jnp.ones(pa.shape[0]))
-        return Diag(np.asarray(r), np.asarray(c))
-
-
-def _acc_scale(spec: Diag | None, rec: Recording) -> float:
-    """Recorded accelerometer units per g: the spec's mean scale, else the median norm."""
-    if spec is not None:
-        return float(np.mean(np.asarray(spec.s, np.float64)))
-    return float(np.median(np.linalg.norm(np.asarray(rec.acc, np.float64), axis=1)))
+def _fit_seq(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, dict]:
+    """The ``seq`` path of :func:`fit` (the thesis's setting): the state and the metadata."""
+    acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
+    seq = sequences_of(rec, "online")
+    n_seq = len(sequence_slices(rec))
+    dt = recording_dt(rec)
+    spec_from = {s: ("metadata" if sp is not None else "data") for s, sp in (("acc", acc_spec), ("gyr", gyr_spec))}
+    hp = _hp(options, None, False)
+    kind = _kind(options, False)
+    log(f"fitting online on {n_seq} sequences ({rec.n} samples, dt {dt:g} s) ...")
+    t0 = time.perf_counter()
+    try:
+        cals = fit_online_recording(np.asarray(rec.acc, np.float64), np.asarray(rec.gyr, np.float64), seq, dt,
+                                    acc_spec, gyr_spec, hp, kind)
+    except ValueError as e:
+        raise ModelError(f"online: {e}") from None
+    state = {s: linear_state(cal) for s, cal in zip(SENSORS, cals)}
+    meta = {
+        "units": units(rec, SENSORS),
+        "n_sequences": n_seq,
+        "sequences_from": "seq",
+        "kind": kind,
+        "sigma_acc": float(hp.sigma_acc),
+        "n_iter": int(hp.n_iter),
+        "dt": dt,
+        "fit_seconds": time.perf_counter() - t0,
+        "spec_from": spec_from,
+    }
+    return state, meta
 
 
 def _score(cals: tuple[Any, Any], data: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -296,7 +379,7 @@ def _seq_quality(rec: Recording, options: OnlineOptions, model: Any, cals: tuple
     def fit_score(train: list, test: list) -> tuple[np.ndarray, np.ndarray]:
         acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
         c = _fit_segments(rec, np.asarray(train), recording_dt(rec), acc_spec, gyr_spec, _hp(options, None, False),
-                          options.kind)
+                          _kind(options, False))
         return _score(c, _ends_data(rec, test))
 
     return _time_split_rows(rec, held_out, lambda bounds: _score(cals, _ends_data(rec, bounds)), fit_score, "fitted")
@@ -378,39 +461,29 @@ def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: boo
     if rec.seq is not None:
         return _seq_quality(rec, options, model, cals, held_out)
     try:
-        rests = rest_sequences(rec, options)
+        fs = field_setup(rec, options)
     except ModelError as e:
         return {"error": str(e)}, ({"error": str(e)} if held_out else None)
-    ins = _row(*_score(cals, rests.data), f"all {len(rests.intervals)} rests")
+    G = gsens_of(model.state)
+    cal = field.FieldInit(*cals, np.zeros((3, 3)) if G is None else G)
+    ins = _row(*field.rest_scores(cal, fs.rests.data), f"all {len(fs.rests.intervals)} rests")
     if not held_out:
         return ins, None
-    P = len(rests.intervals)
+    P = len(fs.rests.intervals)
     F = min(int(options.folds), P - 1)
-    pf = np.concatenate([[-1], mp.fold_ids(P - 1, F)])  # the initial rest starts every fold's stream
-    dt = recording_dt(rec)
-    acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
-    if acc_spec is None:
-        acc_spec = _rest_acc_spec(rests)
-    hp = _hp(options, float(model.meta.get("sigma_acc", rests.sigma_acc / _acc_scale(acc_spec, rec))), True)
-    ea, eg = np.full(P, np.nan), np.full(P - 1, np.nan)
-    n_seq = []
-    for k in range(F):
-        train = [j for j in range(P - 1) if pf[j] != k and pf[j + 1] != k and rests.usable[j]]
-        if len(train) < 2:
-            return ins, {"error": f"fold {k + 1} of {F} keeps {len(train)} sequences; too few rests for held-out folds"}
-        n_seq.append(len(train))
-        if log:
-            log(f"online held out: fold {k + 1}/{F}, {len(train)} sequences ...")
-        try:
-            c = _fit_segments(rec, rests.segments[train], dt, acc_spec, gyr_spec, hp, options.kind)
-        except ValueError as e:
-            return ins, {"error": f"fold {k + 1}: {e}"}
-        a, g = _score(c, rests.data)
-        ea[pf == k] = a[pf == k]
-        sel = (pf[:-1] == k) & rests.usable
-        eg[sel] = g[sel]
-    return ins, _row(ea[1:], eg, f"{F} interleaved rest folds (the initial rest in none), {min(n_seq)}-{max(n_seq)} "
-                     "sequences per fold")
+    if log:
+        log(f"online held out: {F} rest folds, each initialised and streamed without its rests ...")
+    try:
+        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals, fs.config)
+    except ValueError as e:
+        return ins, {"error": str(e)}
+    how = (f"{F} interleaved rest folds (the initial rest in none), each initialised from its own rests, "
+           f"{folds.n_seq.min()}-{folds.n_seq.max()} sequences per fold")
+    ea, eg = field.held_out_errors(folds, fs.rests.data, "final")
+    row = _row(ea[1:], eg, how)
+    ea0, eg0 = field.held_out_errors(folds, fs.rests.data, "init")
+    row["initial_guess"] = _row(ea0[1:], eg0, "the same folds: the initial calibration from the rests, before the filter")
+    return ins, row
 
 
 METHOD = Method(

@@ -25,7 +25,7 @@ from jaxcal.constants import SENSORS
 from jaxcal.methods.base import GSENS_KEY, REF_KEY, Log, ModelError, holdout_mask, recording_spec, rms
 from jaxcal.recording import Recording, take_rows
 
-__all__ = ["describe", "labelled_quality", "linear_parameters", "summary_lines"]
+__all__ = ["contradiction", "describe", "labelled_quality", "linear_parameters", "summary_lines"]
 
 _BIAS_UNIT = {"acc": ("mg", 1e3), "gyr": ("deg/s", 180.0 / math.pi)}
 _RMS_KEY = {"acc": ("acc_rms_mg", 1e3), "gyr": ("gyr_rms_degs", 180.0 / math.pi)}
@@ -198,6 +198,41 @@ def _without_g(rec: Recording, options: Any, model: Any, log: Log) -> dict[str, 
     return {k: q[k] for k in ("acc_rms_mg", "gyr_median_deg", "how")}
 
 
+# A held-out figure this much worse than the initial guess the method started from (ratio, plus an
+# absolute slack for figures at the noise floor) means the method diverged or made things worse.
+WORSE_RATIO = {"acc_rms_mg": (1.25, 0.05), "gyr_median_deg": (1.25, 0.05)}
+# A scale this far (relative) from the datasheet/nominal one is no calibration of this part.
+SCALE_PLAUSIBLE_REL = 0.5
+
+
+def contradiction(desc: Mapping[str, Any]) -> str | None:
+    """Why a fitted model must not be written, in one line, or ``None``: its held-out figure worse
+    than the initial guess it started from (:data:`WORSE_RATIO`; ``online`` between rests scores
+    both on the same folds), a non-finite held-out figure, or a scale more than
+    :data:`SCALE_PLAUSIBLE_REL` from the datasheet's (e.g. 1700x the part's nominal).
+
+    Args:
+        desc: :func:`describe`'s result.
+    """
+    for s, p in desc.get("parameters", {}).items():
+        pct = p.get("scale_pct")
+        if pct is not None and np.max(np.abs(np.asarray(pct, np.float64))) > 100 * SCALE_PLAUSIBLE_REL:
+            return (f"the {s} scale is {_fmt3(np.asarray(pct) / 100 + 1, '.4g')} times the datasheet's: no calibration "
+                    "of this part (wrong datasheet values, or the fit diverged)")
+    ho = desc.get("held_out") or {}
+    for k in ("acc_rms_mg", "gyr_median_deg"):
+        if k in ho and ho[k] is not None and not math.isfinite(float(ho[k])):
+            return f"the held-out {k} is not finite: the fit diverged"
+    init = ho.get("initial_guess")
+    if isinstance(init, Mapping):
+        for k, (ratio, slack) in WORSE_RATIO.items():
+            v, v0 = ho.get(k), init.get(k)
+            if v is not None and v0 is not None and v > ratio * v0 + slack:
+                return (f"the held-out {k} {v:.3f} is worse than its own initial guess's {v0:.3f} on the same folds: "
+                        "the filter diverged from the rests' calibration (use that: --method multipos)")
+    return None
+
+
 def _fmt3(v: Any, f: str = "+.3f") -> str:
     return "[" + ", ".join(format(float(x), f) for x in v) + "]"
 
@@ -240,6 +275,8 @@ def summary_lines(desc: Mapping[str, Any]) -> list[str]:
     if "held_out" in desc:
         ho = desc["held_out"]
         lines.append(f"held out: {_quality_text(ho)}")
+        if isinstance(ho.get("initial_guess"), Mapping):
+            lines.append(f"held out, initial guess: {_quality_text(ho['initial_guess'])}")
         plain = ho.get("without_g_sensitivity")
         if plain is not None:
             lines.append(f"held out without --g-sensitivity: {_quality_text(plain)}")

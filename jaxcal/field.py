@@ -1,0 +1,313 @@
+"""Field calibration: the streaming filter of :mod:`jaxcal.online` on a recording of rests joined by
+hand motions, with no labels, no ``seq`` ids and no datasheet (the thesis's chapter-4 promise,
+"in field without use of any external equipment", on real recordings).
+
+Why the simulation's recipe fails in the field. :mod:`jaxcal.online` assumes what the thesis's
+Dataset 2 holds: every accelerometer sample is gravity carried by the gyroscope (rotation about
+the sensor's centre, both sensors sampled at once), and a datasheet as the starting point. Real
+hand motions break the first (translational acceleration of 0.1-1 g, a lever arm, a time offset
+between the two streams), and raw counts without a datasheet break the second (an unsigned 16-bit
+offset of 33000 LSB, a scale guessed 40 % off). Both made ``online`` diverge or lose to the
+factory calibration on every real recording (issue 26).
+
+What this module does instead:
+
+1. **Initialise from the data** (:func:`rest_init`): the accelerometer from the rests (``|f| = 1 g``,
+   :func:`jaxcal.multipos.fit_prepared`) and the gyroscope from the gravity it carries between
+   them; the datasheet is never the starting point (a wrong one cannot make the filter diverge).
+2. **Stream only what the model explains** (:func:`field_batch`): each sequence is one motion
+   between two rests; the gyroscope is integrated through every sample of the motion, and the
+   accelerometer residuals sit at the two rests (each rest's mean, weighted by its sample count:
+   exactly the sum of its per-sample residuals when the body is still). The motion samples stay in
+   the propagation with residual weight 0 (``residuals="rests"``, the default) or 1 (``"all"``,
+   the simulation's recipe); ``results/field.md`` measures which holds out better. The physics that
+   ``diagnose`` names in the field (lever arm, accelerometer-gyroscope time offset, translational
+   acceleration) lives in the motion samples, so the rest residuals are immune to it.
+3. **Hold out what it never saw** (:func:`fold_fits`): interleaved rest folds; fold ``k`` is
+   initialised and streamed without its rests and the motions that touch them, so the held-out
+   figure includes the initialisation. The same folds score the initial guess, so a user sees
+   whether the filter helped (and ``calibrate`` refuses a model that is worse than its own
+   initial guess).
+
+Everything is float64 (entered here). The batch has one shape for the full fit and every fold
+(a fold skips sequences by zero weights), so a recording compiles once.
+
+Dimension letters: ``P`` rests, ``J = P - 1`` motions, ``M`` usable motions (sequences), ``N``
+samples per sequence, ``F`` folds.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxcal import multipos as mp
+from jaxcal.online import OnlineHP, SequenceBatch, make_filter, online_scan, to_linear_cal
+from jaxcal.sensor import Diag, LinearCal
+
+__all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "carried_sigma", "compose", "held_out_errors", "rest_scores", "field_batch", "fit_field", "fold_fits", "rest_init"]
+
+RESIDUALS = ("rests", "all")
+
+_scan_jit = jax.jit(online_scan, static_argnames=("kind",))
+
+
+class FieldInit(NamedTuple):
+    """A calibration from the data alone (:func:`rest_init`): ``acc`` and ``gyr`` applied forms
+    (recorded units to g and rad/s) and the gyroscope's g-sensitivity ``G`` ((rad/s)/g, zero unless
+    fitted): ``w = A_g (y_g - b_g) - G f``, ``f`` the calibrated accelerometer."""
+
+    acc: LinearCal
+    gyr: LinearCal
+    G: np.ndarray
+
+
+def rest_init(data: mp.MultiposData, acc_w: np.ndarray | None = None, gyr_w: np.ndarray | None = None,
+              config: mp.MultiposConfig = mp.MultiposConfig()) -> FieldInit:
+    """The initial calibration from the data alone: the accelerometer from the rests' ``|f| = 1 g``,
+    the gyroscope bias (and, with ``config.g_sensitivity``, its g-sensitivity) from the rests and its
+    matrix from the gravity carried between them (:func:`jaxcal.multipos.fit_prepared`, float64).
+
+    Args:
+        data: the rests and motions (:func:`jaxcal.multipos.prepare`, recorded units).
+        acc_w: (P,) 0/1 weight per rest (``None``: all).
+        gyr_w: (J,) 0/1 weight per motion (``None``: all usable).
+        config: :class:`~jaxcal.multipos.MultiposConfig` (static).
+
+    Returns:
+        :class:`FieldInit` (numpy float64).
+    """
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        P = d.pose_acc.shape[0]
+        aw = jnp.ones(P) if acc_w is None else jnp.asarray(acc_w, jnp.float64)
+        gw = jnp.ones(P - 1) if gyr_w is None else jnp.asarray(gyr_w, jnp.float64)
+        f = mp.fit_prepared_jit(d, config, acc_w=aw, gyr_w=gw)
+        return FieldInit(LinearCal(np.asarray(f.acc.A), np.asarray(f.acc.b)),
+                         LinearCal(np.asarray(f.gyr.A), np.asarray(f.gyr.b)), np.asarray(f.gsens))
+
+
+class FieldBatch(NamedTuple):
+    """A recording's motions as filter sequences, in *raw* units (calibrated per fit, since the
+    initialisation differs between folds).
+
+    Args:
+        acc: (J, N, 3) raw accelerometer (sequence ``j``: the motion between rests ``j`` and ``j + 1``): row 0 the mean of the rest before the motion, rows
+            ``1..n`` the motion's samples, row ``n + 1`` the mean of the rest after it; padded.
+        gyr: (M, N, 3) raw gyroscope of the same rows (row 0: the rest's last sample, so that the
+            propagation integrates the motion from the last rest sample to the first of the next).
+        mask: (M, N) 1 on rows, 0 on padding.
+        rest_n: (M, 2) samples in the rest before and after (the weight of rows 0 and ``n + 1``).
+        last: (J,) index of the last row (``n + 1``).
+        usable: (J,) bool, the motion's samples and the rest after it are in the sequence (else
+            only the rest before it).
+    """
+
+    acc: np.ndarray
+    gyr: np.ndarray
+    mask: np.ndarray
+    rest_n: np.ndarray
+    last: np.ndarray
+    usable: np.ndarray
+
+
+def field_batch(acc: np.ndarray, gyr: np.ndarray, intervals: np.ndarray, usable: np.ndarray) -> FieldBatch:
+    """Every motion between consecutive rests as a sequence (:class:`FieldBatch`). An unusable
+    motion (e.g. a saturated gyro) keeps only the rest before it, so that the rest still gives its
+    ``|f| = 1 g`` row (one row: its direction is the sequence's free start, :func:`_weights`).
+
+    Args:
+        acc, gyr: (L, 3) raw outputs.
+        intervals: (P, 2) rest sample ranges ``[start, stop)``, in time order.
+        usable: (P - 1,) bool, motion ``j`` is used (e.g. its gyro does not saturate).
+    """
+    acc, gyr = np.asarray(acc, np.float64), np.asarray(gyr, np.float64)
+    iv = np.asarray(intervals, int)
+    usable = np.asarray(usable, bool)
+    if len(iv) < 2:
+        raise ValueError("fewer than two rests")
+    J = len(iv) - 1
+    n_rows = [int(iv[j + 1, 0] - iv[j, 1]) + 2 if usable[j] else 1 for j in range(J)]
+    N = max(n_rows)
+    a, g = np.zeros((J, N, 3)), np.zeros((J, N, 3))
+    mask, rest_n, last = np.zeros((J, N)), np.zeros((J, 2)), np.zeros(J, int)
+    for j in range(J):
+        s0, s1 = iv[j]
+        e0, e1 = iv[j + 1]
+        n = n_rows[j]
+        a[j, 0], g[j, 0] = acc[s0:s1].mean(0), 0.5 * (gyr[s1 - 1] + gyr[s1])
+        if usable[j]:
+            a[j, 1:n - 1], g[j, 1:n - 1] = acc[s1:e0], 0.5 * (gyr[s1:e0] + gyr[s1 + 1:e0 + 1])
+            a[j, n - 1], g[j, n - 1] = acc[e0:e1].mean(0), gyr[e0]
+        a[j, n:], g[j, n:] = a[j, n - 1], g[j, n - 1]  # padding repeats the last row (masked out)
+        mask[j, :n] = 1.0
+        rest_n[j] = (s1 - s0, e1 - e0)
+        last[j] = n - 1
+    return FieldBatch(a, g, mask, rest_n, last, usable.copy())
+
+
+def compose(outer: LinearCal, inner: LinearCal) -> LinearCal:
+    """``x = A_o (A_i (y - b_i) - b_o)`` as one :class:`~jaxcal.sensor.LinearCal`:
+    ``A = A_o A_i``, ``b = b_i + A_i^{-1} b_o``."""
+    A_o, b_o, A_i, b_i = (np.asarray(v, np.float64) for v in (outer.A, outer.b, inner.A, inner.b))
+    return LinearCal(A_o @ A_i, b_i + np.linalg.solve(A_i, b_o))
+
+
+def carried_sigma(init: FieldInit, data: mp.MultiposData, motion_w: np.ndarray) -> float:
+    """Per-component std (rad) of the gravity direction that ``init``'s gyroscope carries from one
+    rest to the next, from its angles on the motions of weight 1: ``sqrt(mean(angle^2) / 2)``
+    (two tangential components). On real motions this is the dominant error of a carried
+    direction (Xsens: ~0.5 deg, against ~0.002 deg of accelerometer noise in a rest's mean)."""
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        a, g = (LinearCal(jnp.asarray(c.A, jnp.float64), jnp.asarray(c.b, jnp.float64)) for c in init[:2])
+        ang = np.asarray(mp.gyro_angle_errors(g, jnp.asarray(init.G, jnp.float64), a, d))
+    ok = (np.asarray(motion_w) > 0) & np.asarray(data.seg_ok, bool) & np.isfinite(ang)
+    return float(np.sqrt(np.mean(ang[ok] ** 2) / 2.0)) if ok.any() else 0.0
+
+
+def _weights(batch: FieldBatch, seq_w: np.ndarray, residuals: str, sigma: float,
+             sigma_dir: float) -> tuple[np.ndarray, np.ndarray]:
+    """(J, N) residual weights along and across the predicted direction (:class:`~jaxcal.online.SequenceBatch`).
+
+    A rest's ``|f|`` (along) counts once, with its sample count ``n``: at the end of the usable
+    sequence before it when that one is streamed, else at the start of its own. Across: the start
+    rest ``n`` (its direction is the sequence's free start ``f_0``, so this costs nothing) and the
+    end rest ``1 / (1/n + sigma_dir^2 / sigma^2)`` (the gyroscope's carrying error). Motion rows: 0
+    (``"rests"``) or 1 (``"all"``). A sequence with ``seq_w`` 0: all 0 (skipped)."""
+    on = np.asarray(seq_w, np.float64) > 0
+    use = np.asarray(batch.usable, bool)
+    w = batch.mask * (1.0 if residuals == "all" else 0.0)
+    wt = w.copy()
+    J = np.arange(len(batch.last))
+    n0, n1 = batch.rest_n[:, 0], batch.rest_n[:, 1]
+    covered = np.concatenate([[False], on[:-1] & use[:-1]])
+    w[J, 0], wt[J, 0] = np.where(covered, 0.0, n0), n0
+    e = J[use]
+    w[e, batch.last[e]] = n1[e]
+    wt[e, batch.last[e]] = 1.0 / (1.0 / n1[e] + (sigma_dir / sigma) ** 2)
+    return w * on[:, None], wt * on[:, None]
+
+
+def fit_field(batch: FieldBatch, init: FieldInit, dt: float, hp: OnlineHP, kind: str = "diag",
+              residuals: str = "rests", seq_w: np.ndarray | None = None,
+              sigma_dir: float = 0.0) -> FieldInit:
+    """The filter streamed over ``batch``'s sequences in order, starting at ``init``.
+
+    The raw data are calibrated with ``init`` first (the gyroscope's g-sensitivity taken out with
+    the initially calibrated accelerometer), so the filter's prior centre (``theta = 0``) is the
+    initial calibration and its parameters are small corrections to it (its spec is the identity);
+    the result is the composition of the two. ``kind="diag"`` (the default) corrects scales and
+    biases and keeps the initial cross-axis terms: on the MPU-6050, whose poses never mix x and y,
+    the affine filter fitted those terms to the gyroscope's carrying errors (held out 3.6 mg
+    against 0.94 mg; ``results/field.md``).
+
+    Args:
+        batch: :func:`field_batch`.
+        init: :class:`FieldInit` (:func:`rest_init`).
+        dt: sample period (s).
+        hp: :class:`~jaxcal.online.OnlineHP`; ``sigma_acc`` is one sample's noise in g.
+        kind: ``"affine"`` or ``"diag"`` (static).
+        residuals: ``"rests"`` or ``"all"`` (:func:`_weights`).
+        seq_w: (J,) 0/1 per sequence (``None``: all); a 0 skips the sequence.
+        sigma_dir: per-component std (rad) of a carried gravity direction (:func:`carried_sigma`);
+            0: the accelerometer's noise alone, the simulation's assumption.
+
+    Returns:
+        :class:`FieldInit`: the final calibration (``G`` carried through the gyroscope's correction).
+    """
+    if residuals not in RESIDUALS:
+        raise ValueError(f"residuals must be one of {RESIDUALS}, got {residuals!r}")
+    seq_w = np.ones(len(batch.last)) if seq_w is None else np.asarray(seq_w, np.float64)
+    ia, ig, G = init
+    ua = (batch.acc - np.asarray(ia.b)) @ np.asarray(ia.A).T
+    ug = (batch.gyr - np.asarray(ig.b)) @ np.asarray(ig.A).T - ua @ np.asarray(G).T
+    with jax.enable_x64(True):
+        f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+        w, wt = _weights(batch, seq_w, residuals, float(hp.sigma_acc), float(sigma_dir))
+        sb = SequenceBatch(f64(ua), f64(ug), f64(batch.mask), f64(w), f64(wt))
+        hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
+        state0 = make_filter(kind).init(hp64, jnp.float64)
+        state, _ = _scan_jit(state0, sb, f64(dt), hp64, kind)
+        one = Diag(jnp.ones(3), jnp.zeros(3))
+        ca, cg = to_linear_cal(state.theta, kind, one, one)
+        ca, cg = (LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in (ca, cg))
+    return FieldInit(compose(ca, ia), compose(cg, ig), np.asarray(cg.A) @ np.asarray(G))
+
+
+class FoldFits(NamedTuple):
+    """Held-out fits of :func:`fold_fits`.
+
+    Args:
+        rest_fold: (P,) fold of each rest (-1: the initial rest, in every fold's training set).
+        init: per fold, the :class:`FieldInit` fitted without the fold's rests and motions.
+        final: per fold, the filter's :class:`FieldInit` from that initial guess.
+        n_seq: (F,) sequences streamed per fold.
+    """
+
+    rest_fold: np.ndarray
+    init: list
+    final: list
+    n_seq: np.ndarray
+
+
+def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP, n_folds: int, kind: str = "diag",
+              residuals: str = "rests", config: mp.MultiposConfig = mp.MultiposConfig()) -> FoldFits:
+    """Interleaved rest folds (the initial rest in none: every fold's stream starts from it).
+    Fold ``k`` leaves out its rests (from the initial accelerometer fit), the motions that start
+    or end at them (from the initial gyroscope fit and from the stream), and is scored on exactly
+    those by the caller.
+
+    Args:
+        data: the rests and motions (:func:`jaxcal.multipos.prepare`) the batch was cut from.
+        batch: :func:`field_batch` of the same rests.
+        dt: sample period (s).
+        hp: :class:`~jaxcal.online.OnlineHP`.
+        n_folds: number of folds (at most ``P - 1``).
+        kind, residuals, config: as :func:`fit_field` and :func:`rest_init`.
+    """
+    P = data.pose_acc.shape[0]
+    F = min(int(n_folds), P - 1)
+    pf = np.concatenate([[-1], mp.fold_ids(P - 1, F)])
+    seg_ok = np.asarray(data.seg_ok, bool) & np.asarray(batch.usable, bool)
+    inits, finals, n_seq = [], [], []
+    for k in range(F):
+        aw = (pf != k).astype(np.float64)
+        both = (pf[:-1] != k) & (pf[1:] != k)
+        mw = (both & seg_ok).astype(np.float64)
+        if mw.sum() < 2:
+            raise ValueError(f"fold {k + 1} of {F} keeps {int(mw.sum())} motions; too few rests for held-out folds")
+        init = rest_init(data, aw, mw, config)
+        inits.append(init)
+        finals.append(fit_field(batch, init, dt, hp, kind, residuals, seq_w=both.astype(np.float64),
+                                sigma_dir=carried_sigma(init, data, mw)))
+        n_seq.append(int(mw.sum()))
+    return FoldFits(pf, inits, finals, np.asarray(n_seq))
+
+
+def rest_scores(cal: FieldInit, data: mp.MultiposData) -> tuple[np.ndarray, np.ndarray]:
+    """Per-rest ``| |f| - 1 g |`` (g) and per-motion carried-gravity angle (rad; NaN where the motion
+    is unusable) of a calibration with its g-sensitivity, on the rests and motions of ``data``."""
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        a, g = (LinearCal(jnp.asarray(c.A, jnp.float64), jnp.asarray(c.b, jnp.float64)) for c in cal[:2])
+        ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
+        eg = np.asarray(mp.gyro_angle_errors(g, jnp.asarray(cal.G, jnp.float64), a, d))
+    return ea, np.where(np.asarray(data.seg_ok, bool), eg, np.nan)
+
+
+def held_out_errors(folds: FoldFits, data: mp.MultiposData, which: str = "final") -> tuple[np.ndarray, np.ndarray]:
+    """Each rest's ``| |f| - 1 g |`` (g) from the fold that left it out (NaN for the initial rest, in
+    no fold) and each motion's carried-gravity angle (rad) from the fold that left out the rest it
+    starts at (NaN where unusable), for the folds' ``"final"`` or ``"init"`` calibrations."""
+    pf = folds.rest_fold
+    P = len(pf)
+    ea, eg = np.full(P, np.nan), np.full(P - 1, np.nan)
+    for k, cal in enumerate(getattr(folds, which)):
+        a, g = rest_scores(cal, data)
+        ea[pf == k] = a[pf == k]
+        eg[pf[:-1] == k] = g[pf[:-1] == k]
+    return ea, eg
