@@ -246,12 +246,17 @@ class FoldFits(NamedTuple):
         init: per fold, the :class:`FieldInit` fitted without the fold's rests and motions.
         final: per fold, the filter's :class:`FieldInit` from that initial guess.
         n_seq: (F,) sequences streamed per fold.
+        determined: (F,) bool, the fold's remaining rests determine the accelerometer
+            (:func:`jaxcal.multipos.observability` at the initial fit on all rests); an undetermined
+            fold's scores would be an extrapolation and are not held-out figures (as
+            ``multipos``'s, e.g. the only rest with one axis down in a six-face session).
     """
 
     rest_fold: np.ndarray
     init: list
     final: list
     n_seq: np.ndarray
+    determined: np.ndarray
 
 
 def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP, n_folds: int, kind: str = "diag",
@@ -273,9 +278,11 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
     F = min(int(n_folds), P - 1)
     pf = np.concatenate([[-1], mp.fold_ids(P - 1, F)])
     seg_ok = np.asarray(data.seg_ok, bool) & np.asarray(batch.usable, bool)
-    inits, finals, n_seq = [], [], []
+    whole = rest_init(data, config=config)
+    inits, finals, n_seq, det = [], [], [], []
     for k in range(F):
         aw = (pf != k).astype(np.float64)
+        det.append(bool(mp.observability(data, whole.acc, whole.gyr, acc_w=aw).acc_sv.min() >= mp.OBSERVABLE_TOL))
         both = (pf[:-1] != k) & (pf[1:] != k)
         mw = (both & seg_ok).astype(np.float64)
         if mw.sum() < 2:
@@ -285,7 +292,7 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
         finals.append(fit_field(batch, init, dt, hp, kind, residuals, seq_w=both.astype(np.float64),
                                 sigma_dir=carried_sigma(init, data, mw)))
         n_seq.append(int(mw.sum()))
-    return FoldFits(pf, inits, finals, np.asarray(n_seq))
+    return FoldFits(pf, inits, finals, np.asarray(n_seq), np.asarray(det, bool))
 
 
 def rest_scores(cal: FieldInit, data: mp.MultiposData) -> tuple[np.ndarray, np.ndarray]:
@@ -302,11 +309,14 @@ def rest_scores(cal: FieldInit, data: mp.MultiposData) -> tuple[np.ndarray, np.n
 def held_out_errors(folds: FoldFits, data: mp.MultiposData, which: str = "final") -> tuple[np.ndarray, np.ndarray]:
     """Each rest's ``| |f| - 1 g |`` (g) from the fold that left it out (NaN for the initial rest, in
     no fold) and each motion's carried-gravity angle (rad) from the fold that left out the rest it
-    starts at (NaN where unusable), for the folds' ``"final"`` or ``"init"`` calibrations."""
+    starts at (NaN where unusable), for the folds' ``"final"`` or ``"init"`` calibrations; NaN too
+    for the rests and motions of undetermined folds (:class:`FoldFits`)."""
     pf = folds.rest_fold
     P = len(pf)
     ea, eg = np.full(P, np.nan), np.full(P - 1, np.nan)
     for k, cal in enumerate(getattr(folds, which)):
+        if not folds.determined[k]:
+            continue
         a, g = rest_scores(cal, data)
         ea[pf == k] = a[pf == k]
         eg[pf[:-1] == k] = g[pf[:-1] == k]

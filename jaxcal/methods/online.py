@@ -479,10 +479,18 @@ def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: boo
         return ins, {"error": str(e)}
     how = (f"{F} interleaved rest folds (the initial rest in none), each initialised from its own rests, "
            f"{folds.n_seq.min()}-{folds.n_seq.max()} sequences per fold")
+    skipped = np.flatnonzero(~folds.determined)
+    if skipped.size:
+        n_rests = int(np.isin(folds.rest_fold, skipped).sum())
+        how += (f"; {n_rests} rests not held out: without them the others do not determine the accelerometer "
+                "(relative singular value below OBSERVABLE_TOL), so their score would be an extrapolation")
+    if skipped.size == F:
+        return ins, {"error": "no fold's rests determine the accelerometer without the fold: record more rests"}
     ea, eg = field.held_out_errors(folds, fs.rests.data, "final")
-    row = _row(ea[1:], eg, how)
+    row = _row(ea[1:][np.isfinite(ea[1:])], eg, how)
     ea0, eg0 = field.held_out_errors(folds, fs.rests.data, "init")
-    row["initial_guess"] = _row(ea0[1:], eg0, "the same folds: the initial calibration from the rests, before the filter")
+    row["initial_guess"] = _row(ea0[1:][np.isfinite(ea0[1:])], eg0,
+                                "the same folds: the initial calibration from the rests, before the filter")
     return ins, row
 
 
