@@ -32,12 +32,13 @@ from jaxcal.methods.base import (
     units,
 )
 from jaxcal.online import OnlineHP, fit_online_recording
-from jaxcal.recording import Recording, sequence_slices, take_rows
+from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices, take_rows
 from jaxcal.sensor import Diag, LinearCal
 from jaxcal.sequences import sequence_bounds
 from jaxcal.static import detect_static
 
-__all__ = ["METHOD", "OnlineOptions", "RestSequences", "fit", "quality", "rest_sequences", "seq_split_quality"]
+__all__ = ["METHOD", "FieldSetup", "OnlineOptions", "RestSequences", "field_setup", "fit", "quality", "rest_seq_recording",
+           "rest_sequences", "rest_spec", "seq_split_quality"]
 
 
 class OnlineOptions(NamedTuple):
@@ -348,6 +349,19 @@ def _ends_data(rec: Recording, bounds: list[tuple[int, int]]) -> Any:
                       gyr_limit=mp.DetectOptions.for_recording(rec).gyr_limit)
 
 
+def _spec_score(rec: Recording, test: list) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`_score` of the datasheet conversion alone (the starting point of the ``seq`` methods)
+    on the sequences ``test``, or ``None`` without datasheet values."""
+    specs = [recording_spec(rec, s) for s in SENSORS]
+    if any(sp is None for sp in specs):
+        return None
+    with jax.enable_x64(True):
+        cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
+                     for sp in specs)
+        cals = tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
+    return _score(cals, _ends_data(rec, test))
+
+
 def _time_split_rows(rec: Recording, held_out: bool, score: Any, fit_score: Any, verb: str) -> tuple[dict, dict | None]:
     """In-sample and time-split rows on a recording with ``seq`` ids: ``score(bounds)`` scores the
     sequences with sample ranges ``bounds``; ``fit_score(train, test)`` fits on the ``train``
@@ -366,8 +380,12 @@ def _time_split_rows(rec: Recording, held_out: bool, score: Any, fit_score: Any,
         ea, eg = fit_score(bounds[: M - k], bounds[M - k:])
     except (ValueError, ModelError) as e:
         return ins, {"error": f"time split: {e}"}
-    return ins, _row(ea, eg[::2], f"time split: {verb} on the first {M - k} sequences, scored on the last {k} "
-                     "(their first and last samples)")
+    row = _row(ea, eg[::2], f"time split: {verb} on the first {M - k} sequences, scored on the last {k} "
+               "(their first and last samples)")
+    spec = _spec_score(rec, bounds[M - k:])
+    if spec is not None:
+        row["initial_guess"] = _row(spec[0], spec[1][::2], "the same sequences: the datasheet values alone")
+    return ins, row
 
 
 def _seq_quality(rec: Recording, options: OnlineOptions, model: Any, cals: tuple[Any, Any],
@@ -500,3 +518,47 @@ METHOD = Method(
     "sequences); seq ids, or rests between the motions; no labels",
     check_linear_state,
 )
+
+
+def rest_seq_recording(rec: Recording, options: OnlineOptions = OnlineOptions()) -> Recording:
+    """A recording without ``seq`` ids as the thesis's Dataset 2 sees one: each usable motion
+    between two rests, with ``rest_pad`` seconds of each rest, is a sequence with static ends; all
+    are made as long as the longest by repeating the samples of the rest after it (a longer static
+    end: the body does not move there). Times are re-laid at the recording's sample period. Missing
+    datasheet values are filled in from the rests (:func:`rest_spec`).
+
+    Args:
+        rec: a recording with ``acc`` and ``gyr`` and rests between its motions (no ``seq``).
+        options: :class:`OnlineOptions` (the rest options).
+    """
+    rests = rest_sequences(rec, options)
+    js = np.flatnonzero(rests.usable)
+    if len(js) < 2:
+        raise ModelError(f"no 'seq' ids, and only {len(js)} usable motions between {len(rests.intervals)} rests; "
+                         "record more rest-motion-rest sequences")
+    n = int(max(b - a for a, b in rests.segments[js]))
+    rows, seq = [], []
+    for k, j in enumerate(js):
+        a, b = rests.segments[j]
+        r0, r1 = rests.intervals[j + 1]
+        extra = np.resize(np.arange(r0, r1), n - (b - a))  # the next rest's samples, cycled
+        rows.append(np.concatenate([np.arange(a, b), extra]))
+        seq.append(np.full(n, k))
+    idx = np.concatenate(rows)
+    changes = {f: np.asarray(getattr(rec, f))[idx] for f in PER_SAMPLE_FIELDS if getattr(rec, f) is not None}
+    changes["t"] = np.arange(len(idx)) * recording_dt(rec)
+    changes["seq"] = np.concatenate(seq)
+    for s, spec in zip(SENSORS, rest_spec(rec, options)):
+        if recording_spec(rec, s) is None:  # no datasheet: the rests' diagonal stands in for it
+            key = "acc_lsb_per_g" if s == "acc" else "gyr_lsb_per_rads"
+            changes[key], changes[f"{s}_bias_lsb"] = np.asarray(spec.s), np.asarray(spec.b)
+    return rec.replace(**changes, extra={}, gt_t=None, gt_pos=None, gt_quat=None)
+
+
+def rest_spec(rec: Recording, options: OnlineOptions = OnlineOptions()) -> tuple[Diag, Diag]:
+    """Datasheet-like diagonal models ``y = s x + b`` of both sensors from the rests
+    (:func:`jaxcal.field.rest_init`'s diagonal), for a method that needs datasheet values on a
+    recording without them (``online-thesis`` between rests)."""
+    rests = rest_sequences(rec, options)
+    init = field.rest_init(rests.data)
+    return tuple(Diag(1.0 / np.diag(np.asarray(c.A)), np.asarray(c.b)) for c in init[:2])

@@ -13,7 +13,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS, SENSORS
-from jaxcal.methods.base import Fitted, Log, Method, ModelError, recording_dt, require_both, require_spec, sequences_of, units
+from jaxcal.methods.base import (
+    Fitted,
+    Log,
+    Method,
+    ModelError,
+    recording_dt,
+    recording_spec,
+    require_both,
+    require_spec,
+    sequences_of,
+    units,
+)
 from jaxcal.online_thesis import calibrate_acc, calibrate_gyr, fit_online_thesis_recording
 from jaxcal.recording import Recording, sequence_slices
 from jaxcal.sensor import Diag
@@ -52,6 +63,15 @@ def fit(rec: Recording, options: OnlineThesisOptions, log: Log) -> Fitted:
         log: progress sink.
     """
     require_both(rec, "online-thesis")
+    spec_from = "metadata"
+    if rec.seq is None:  # rests between motions: the thesis's sequences cut from them
+        from jaxcal.methods.online import rest_seq_recording
+
+        if recording_spec(rec, "acc") is None or recording_spec(rec, "gyr") is None:
+            spec_from = "rests (no datasheet values: the diagonal of the initial calibration from the rests)"
+        rec = rest_seq_recording(rec)
+        log(f"online-thesis: no 'seq' ids: {len(sequence_slices(rec))} sequences cut between rests, made equally "
+            "long with the next rest's samples")
     seq = sequences_of(rec, "online-thesis")
     acc_spec = require_spec(rec, "acc", "online-thesis")
     gyr_spec = require_spec(rec, "gyr", "online-thesis")
@@ -80,6 +100,7 @@ def fit(rec: Recording, options: OnlineThesisOptions, log: Log) -> Fitted:
         "n_sequences": n_seq,
         "dt": dt,
         "fit_seconds": elapsed,
+        "spec_from": spec_from,
         "acc_range": float(ACC_RANGE_G),
         "gyr_range": float(GYR_RANGE_RADS),
     }
@@ -113,5 +134,5 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
 METHOD = Method(
     "online-thesis", fit, apply, OnlineThesisOptions,
     "thesis chapter 4 as published: two 3-5-10-5-3 NNs self-calibrated on rotation sequences; "
-    "needs seq ids and datasheet values",
+    "seq ids and datasheet values, or rests between the motions",
 )

@@ -163,7 +163,8 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
             ins, ho = online.quality(rec, options, model, held_out=held_out, log=log)
             out["in_sample"] = ins
         elif method == "online-thesis":
-            ins, ho = online.seq_split_quality(method, rec, options, model, held_out=held_out, log=log)
+            seq_rec = rec if rec.seq is not None else online.rest_seq_recording(rec)  # as fit cut it
+            ins, ho = online.seq_split_quality(method, seq_rec, options, model, held_out=held_out, log=log)
             out["in_sample"] = ins
         elif method in ("linear", "cubic", "nn"):
             ins, ho = labelled_quality(method, rec, options, model, log) if held_out else (None, None)
@@ -207,8 +208,10 @@ SCALE_PLAUSIBLE_REL = 0.5
 
 def contradiction(desc: Mapping[str, Any]) -> str | None:
     """Why a fitted model must not be written, in one line, or ``None``: its held-out figure worse
-    than the initial guess it started from (:data:`WORSE_RATIO`; ``online`` between rests scores
-    both on the same folds), a non-finite held-out figure, or a scale more than
+    than the starting point it was fitted from, scored on the same held-out items
+    (:data:`WORSE_RATIO`; ``held_out.initial_guess``: ``online`` between rests, its initial
+    calibration from the rests; the ``seq`` methods, the datasheet values), a non-finite held-out
+    figure, or a scale more than
     :data:`SCALE_PLAUSIBLE_REL` from the datasheet's (e.g. 1700x the part's nominal).
 
     Args:
@@ -228,8 +231,8 @@ def contradiction(desc: Mapping[str, Any]) -> str | None:
         for k, (ratio, slack) in WORSE_RATIO.items():
             v, v0 = ho.get(k), init.get(k)
             if v is not None and v0 is not None and v > ratio * v0 + slack:
-                return (f"the held-out {k} {v:.3f} is worse than its own initial guess's {v0:.3f} on the same folds: "
-                        "the filter diverged from the rests' calibration (use that: --method multipos)")
+                return (f"the held-out {k} {v:.3f} is worse than its own starting point's {v0:.3f} on the same items "
+                        f"({init.get('how', 'initial guess')}): the fit made the calibration worse")
     return None
 
 
