@@ -35,6 +35,7 @@ EXPERIMENTS = (
     ("real", "experiments.real_data", "real", "public recordings: readers, multipos, peers side by side"),
     ("real", "experiments.discrepancy_benchmark", "discrepancy", "jaxcal diagnose: concealed effects, nulls, TUM-VI, rigs"),
     ("real", "experiments.apply_effects", "apply_effects", "diagnosed model applied to held-out data: each simulated effect removed; real rigs (BROAD 07<->21, TUM-VI halves)"),
+    ("real", "experiments.field", "field", "calibration in the field: online and online-thesis on real recordings without seq ids or datasheet values, beside multipos and the factory calibrations"),
     ("real", "experiments.noise", "noise", "Allan-variance noise parameters: interval coverage, allantools, real static stretches, inflation"),
 )
 GROUPS = ("thesis", "real", "all")

@@ -1,0 +1,226 @@
+"""Calibration in the field (issue 26): ``online`` and ``online-thesis`` on real recordings of rests
+joined by hand motions, without ``seq`` ids and without datasheet values, beside ``multipos`` and
+the factory / published calibrations.
+
+    python -m experiments.field [--quick]
+
+Writes ``results/field.{md,json}`` and ``results/figures/field_heldout.png`` (quick form:
+``field_quick*``). Every jaxcal row is what ``jaxcal calibrate`` computes and prints (the library
+calls it makes: ``methods.fit`` then ``methods.summary.describe``), held out on rests the fit did not
+use; the factory / published rows are read from ``results/real.json`` (written by
+``python -m experiments.real_data``), scored there on every pose; the thesis's simulation numbers
+from ``results/online.json`` (``python -m experiments.online``). The quick form skips the variants
+(``--residuals all``, ``--kind affine``, no datasheet) and ``online-thesis``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+
+from jaxcal import methods
+from jaxcal.methods.summary import contradiction, describe
+from jaxcal.recording import load_recording
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "results"
+DATA = ROOT / "data"
+
+RECORDINGS = {  # name -> (file, the peer row of results/real.json, the issue's goal in mg / deg)
+    "Xsens MTi (imu_tk)": ("imu_tk_xsens_multipos/xsens.npz", "imu_tk_xsens_multipos",
+                           "factory calibration, f = M^-1 K^-1 (raw - offset)", (0.3, 0.3)),
+    "MPU-6050 (tomisuarez)": ("tomisuarez_mpu6050/calibration.npz", "tomisuarez_mpu6050",
+                              "published (tomisuarez2/ImuCalibration, Tedaldi method; fitted upstream on this same session)",
+                              (1.5, None)),
+    "imucal Ferraris session": ("imucal_ferraris_example/session.npz",
+                                "imucal_ferraris_example (continuous session, fair time split)",
+                                "imucal Ferraris (calibration halves of the faces + all three turns, expected_angle -360; "
+                                "K_ga left out)", (0.5, None)),
+}
+DATASHEET_KEYS = ("acc_lsb_per_g", "acc_bias_lsb", "gyr_lsb_per_rads", "gyr_bias_lsb")
+
+
+def _run(method: str, rec: Any, **opts: Any) -> dict[str, Any]:
+    """One ``jaxcal calibrate`` call's numbers: fit, held-out figure, verdict, wall time."""
+    options = methods.get(method).options(**opts)
+    t0 = time.perf_counter()
+    try:
+        model = methods.fit(method, rec, options)
+        desc = describe(method, rec, options, model, lambda msg: None, held_out=True)
+    except methods.ModelError as e:
+        return {"error": str(e), "seconds": time.perf_counter() - t0}
+    ho = desc.get("held_out", {})
+    return {"acc_mg": ho.get("acc_rms_mg"), "gyr_deg": ho.get("gyr_median_deg"), "how": ho.get("how"),
+            "error": ho.get("error"), "initial_guess": ho.get("initial_guess"),
+            "in_sample": desc.get("in_sample"), "refused": contradiction(desc),
+            "seconds": time.perf_counter() - t0}
+
+
+def _peer(real: dict, key: str, row: str) -> dict[str, Any]:
+    r = real.get("recordings", {}).get(key, {}).get("rows", {}).get(row)
+    return {} if r is None else {"acc_mg": r.get("acc_rms_mg"), "gyr_deg": r.get("gyr_median_deg"), "row": row}
+
+
+def _without_datasheet(rec: Any) -> Any:
+    return rec.replace(**{k: None for k in DATASHEET_KEYS if hasattr(rec, k)})
+
+
+def run(quick: bool) -> dict[str, Any]:
+    real_path = RESULTS / "real.json"
+    real = json.loads(real_path.read_text()) if real_path.exists() else {}
+    out: dict[str, Any] = {"quick": quick, "recordings": {}}
+    for name, (path, real_key, peer_row, goal) in RECORDINGS.items():
+        rec = load_recording(DATA / path)
+        rows: dict[str, Any] = {}
+        print(f"[field] {name}: online ...", flush=True)
+        rows["online (rests, diag)"] = _run("online", rec)
+        rows["online --g-sensitivity"] = _run("online", rec, g_sensitivity=True)
+        rows["multipos"] = _run("multipos", rec)
+        rows["multipos --g-sensitivity"] = _run("multipos", rec, g_sensitivity=True)
+        if not quick:
+            print(f"[field] {name}: variants ...", flush=True)
+            rows["online --residuals all (the simulation's recipe)"] = _run("online", rec, residuals="all")
+            rows["online --kind affine"] = _run("online", rec, kind="affine")
+            rows["online, datasheet values removed"] = _run("online", _without_datasheet(rec))
+            rows["online-thesis (sequences cut between rests)"] = _run("online-thesis", rec)
+            rows["online-thesis, datasheet values removed"] = _run("online-thesis", _without_datasheet(rec))
+        out["recordings"][name] = {"file": f"data/{path}", "rows": rows, "peer": _peer(real, real_key, peer_row),
+                                   "goal_mg_deg": goal, "duration_s": float(rec.t[-1] - rec.t[0]), "samples": rec.n}
+    thesis = {}
+    on_path = RESULTS / "online.json"
+    if on_path.exists():
+        thesis = json.loads(on_path.read_text()).get("thesis", {})
+    out["thesis_simulation"] = thesis
+    return out
+
+
+def _fmt(v: Any, f: str = ".3f") -> str:
+    return "-" if v is None else format(float(v), f)
+
+
+def markdown(res: dict[str, Any], figure: str) -> str:
+    lines = [
+        "# Calibration in the field: online and online-thesis on real recordings",
+        "",
+        f"Written by `python -m experiments.field{' --quick' if res['quick'] else ''}` "
+        f"({'quick' if res['quick'] else 'full'} form). Each jaxcal row is one `jaxcal calibrate` call on the whole "
+        "recording (no `seq` ids, no labels): its held-out figure, as `calibrate` prints it (`online`: 10 interleaved "
+        "rest folds, each initialised and streamed without its rests, the initial rest in none; `multipos`: "
+        "leave-one-pose-out; `online-thesis`: a time split of its sequences), its initial guess on the same folds, and "
+        "whether `calibrate` writes it (exit 0) or refuses it (exit 2: worse than its own starting point). Acc: "
+        "| |f| - 1 g | RMS over the held-out rests (mg); gyro: median carried-gravity angle over the held-out motions "
+        "(deg). The peer rows are `results/real.json`'s (nothing fitted, scored on every pose; imucal's session: "
+        "imucal's own fit, scored on the other halves of the faces).",
+        "",
+    ]
+    for name, r in res["recordings"].items():
+        rows, peer, goal = r["rows"], r["peer"], r["goal_mg_deg"]
+        lines += [f"## {name}", "", f"`{r['file']}`: {r['samples']} samples, {r['duration_s']:.0f} s.", "",
+                  "| row | held out acc (mg) | held out gyro (deg) | initial guess acc / gyro | written? | wall time (s) |",
+                  "|---|---|---|---|---|---|"]
+        for k, v in rows.items():
+            if v.get("acc_mg") is None and v.get("error"):
+                lines.append(f"| jaxcal {k} | - | - | - | refused: {v['error']} | {v['seconds']:.0f} |")
+                continue
+            ig = v.get("initial_guess") or {}
+            written = "yes" if v.get("refused") is None else f"**no** (exit 2): {v['refused']}"
+            lines.append(f"| jaxcal {k} | {_fmt(v.get('acc_mg'))} | {_fmt(v.get('gyr_deg'))} | "
+                         f"{_fmt(ig.get('acc_rms_mg'))} / {_fmt(ig.get('gyr_median_deg'))} | {written} | "
+                         f"{v['seconds']:.0f} |")
+        if peer:
+            lines.append(f"| {peer['row']} (results/real.json) | {_fmt(peer.get('acc_mg'))} | {_fmt(peer.get('gyr_deg'))} "
+                         "| - | - | - |")
+        on, mp_ = rows["online (rests, diag)"], rows["multipos"]
+        on_g = rows["online --g-sensitivity"]
+        verdict = []
+        if on.get("acc_mg") is not None and mp_.get("acc_mg") is not None:
+            ratio = on["acc_mg"] / mp_["acc_mg"]
+            verdict.append(f"`online` acc {on['acc_mg']:.3f} mg is {ratio:.2f}x `multipos`'s {mp_['acc_mg']:.3f} mg "
+                           f"({'within' if ratio <= 2 else 'NOT within'} 2x)")
+        if peer.get("acc_mg") is not None and on.get("acc_mg") is not None:
+            verdict.append(f"{'better' if on['acc_mg'] < peer['acc_mg'] else 'NOT better'} than the peer's "
+                           f"{peer['acc_mg']:.3f} mg")
+        g_mg, g_deg = goal
+        best = min((x for x in (on, on_g) if x.get("acc_mg") is not None), key=lambda x: x["gyr_deg"] or 1e9, default=on)
+        if g_mg is not None and best.get("acc_mg") is not None:
+            met = best["acc_mg"] <= g_mg and (g_deg is None or (best.get("gyr_deg") or 1e9) <= g_deg)
+            which = "with --g-sensitivity" if best is on_g else "default"
+            verdict.append(f"issue 26's goal (<= {g_mg} mg" + (f", <= {g_deg} deg" if g_deg else "") +
+                           f"): {'**met**' if met else '**NOT met**'} ({which}: {best['acc_mg']:.3f} mg, "
+                           f"{best['gyr_deg']:.3f} deg)")
+        lines += ["", "- " + "; ".join(verdict) + ".", ""]
+    th = res.get("thesis_simulation") or {}
+    lines += ["## Beside the thesis's simulation", "",
+              "The thesis's chapter 4 was shown on a simulation (Dataset 2: rotations about the sensor's centre, both "
+              "sensors sampled at once, linear, constant temperature). "
+              + (f"Its published numbers, as `results/online.json` records them: {json.dumps(th)}. " if th else "")
+              + "`results/online.md` and `results/online_beyond.md` hold jaxcal's reproduction and `online` at the "
+              "quantisation floor there. On the real recordings above the same online-thesis networks are refused by "
+              "`calibrate` where their held-out error is worse than the datasheet values they start from: the "
+              "published method does not survive hand motions (translational acceleration, unequal sequences, few of "
+              "them), and the table says so rather than writing its model.", "",
+              "## What the field path changes, and why", "",
+              "- **Initialised from the data** (`jaxcal.field.rest_init`): the accelerometer from the rests' |f| = 1 g, "
+              "the gyroscope from the gravity carried between them; the datasheet is never the starting point (the "
+              "'datasheet values removed' rows are identical).",
+              "- **The motions' samples are left out of the accelerometer residuals** (`--residuals rests`, default): "
+              "hand motions carry translational acceleration, a lever arm and a time offset that the model lacks; "
+              "compare the `--residuals all` row (the simulation's recipe). The carried direction at the end of a "
+              "motion is weighted by the gyroscope's own carrying error, not the accelerometer's noise.",
+              "- **Diag corrections by default**: the initial guess holds the cross-axis terms; an affine filter fits "
+              "them to the gyroscope's carrying errors (compare the `--kind affine` row).",
+              "- **What `diagnose` finds, used**: the gyroscope's g-sensitivity (`--g-sensitivity`) takes the Xsens "
+              "gyro from ~0.5 to ~0.13 deg held out; it does not help the MPU-6050 (6 usable motions).",
+              "- **Refusal**: `calibrate` writes no model whose held-out figure is worse than its own starting point "
+              "(1.25x + 0.05) or whose scale is 50 % off the datasheet's (`--force` writes it with a warning).",
+              "", f"![held-out errors]({figure})", ""]
+    return "\n".join(lines)
+
+
+def plot(res: dict[str, Any], path: Path) -> None:
+    names = list(res["recordings"])
+    keys = ["online (rests, diag)", "online --g-sensitivity", "multipos", "multipos --g-sensitivity"]
+    fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
+    w = 0.8 / (len(keys) + 1)
+    for i, k in enumerate(keys + ["peer"]):
+        acc, gyr = [], []
+        for n in names:
+            r = res["recordings"][n]["peer"] if k == "peer" else res["recordings"][n]["rows"].get(k, {})
+            acc.append(r.get("acc_mg") or np.nan)
+            gyr.append(r.get("gyr_deg") or np.nan)
+        x = np.arange(len(names)) + i * w
+        ax[0].bar(x, acc, w, label=k if k != "peer" else "factory / published (real.json)")
+        ax[1].bar(x, gyr, w)
+    for a, t in zip(ax, ("held-out | |f| - 1 g | RMS (mg)", "held-out carried-gravity median (deg)")):
+        a.set_xticks(np.arange(len(names)) + 0.4 - w / 2, names, fontsize=8)
+        a.set_yscale("log")
+        a.set_title(t, fontsize=9)
+    ax[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(quick: bool) -> None:
+    """Write ``results/field[_quick].{md,json}`` and ``results/figures/field[_quick]_heldout.png``."""
+    stem = "field_quick" if quick else "field"
+    t0 = time.perf_counter()
+    res = run(quick)
+    res["seconds"] = time.perf_counter() - t0
+    (RESULTS / "figures").mkdir(parents=True, exist_ok=True)
+    fig = f"figures/{stem}_heldout.png"
+    plot(res, RESULTS / fig)
+    (RESULTS / f"{stem}.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
+    (RESULTS / f"{stem}.md").write_text(markdown(res, fig))
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true")
+    main(ap.parse_args().quick)
