@@ -45,12 +45,12 @@ def _check_model_out(model_out: str, out: str, recording: str) -> None:
         raise UsageError(f"--model-out {model_out}: folder {parent} is not writable")
 
 
-def _gate(diag, rec, what: str) -> object:
+def _gate(rec, what: str) -> object:
     """The reference gate (:mod:`jaxcal.diagnose.gate`) before any fit: one line on refusal."""
     from jaxcal.diagnose.gate import check_reference
 
     try:
-        return check_reference(diag.prepare(rec))
+        return check_reference(rec)
     except ValueError as e:
         raise UsageError(f"{what}: {e}") from None
 
@@ -64,7 +64,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a directory")
     rec = load_recording(args.recording)
-    gate = _gate(diag, rec, args.recording)  # refuse bad input (no reference motion, too short) before any progress line
+    gate = _gate(rec, args.recording)  # refuse bad input (no reference motion, too short) before any progress line
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
         try:
@@ -118,7 +118,6 @@ def _add_align(p: argparse.ArgumentParser) -> None:
 
 
 def _run_align(args: argparse.Namespace) -> int:
-    from jaxcal import diagnose as diag
     from jaxcal.diagnose import align as al
     from jaxcal.diagnose.gate import report_gate
 
@@ -127,7 +126,7 @@ def _run_align(args: argparse.Namespace) -> int:
     rec = load_recording(args.recording)
     if rec.pos_ref is None or rec.quat_ref is None:
         raise UsageError(f"{args.recording}: align needs a reference pose (pos_ref and quat_ref)")
-    gate = _gate(diag, rec, args.recording)
+    gate = _gate(rec, args.recording)
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
         try:

@@ -24,9 +24,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxcal.diagnose.core import Prepared
+from jaxcal.diagnose.core import Prepared, prepare
+from jaxcal.recording import Recording
 
-__all__ = ["GATE", "GateConfig", "GateResult", "SensorGate", "reference_gate", "report_gate", "check_reference"]
+__all__ = ["ALTERNATIVES", "GATE", "GateConfig", "GateResult", "SensorGate", "reference_gate", "report_gate", "check_reference"]
 
 
 class GateConfig(NamedTuple):
@@ -35,8 +36,9 @@ class GateConfig(NamedTuple):
     Attributes:
         max_ratio: largest held-out residual RMS over the signal's own RMS spread, per sensor
             (real rigs: gyro 0.01-0.07, acc 0.1-0.3; contradicting references: 0.9-1.0).
-        scale_range: the singular values of the fitted affine matrix (the sensor's scales, the frame
-            rotation factored out) must lie inside (real MEMS parts: within a few percent of 1).
+        scale_range: per sensor, the singular values of the fitted affine matrix (the sensor's
+            scales, the frame rotation factored out) must lie inside (real rigs: gyro within 1 % of 1,
+            acc within 15 %, its lever arm and filter left unmodelled here).
         max_lag_s: the clock offset searched (s); a larger one is refused as a clock error
             (CONVENTIONS.md: |tau| <= 2 s).
         min_span_s: least time span the valid reference must cover (s).
@@ -48,7 +50,7 @@ class GateConfig(NamedTuple):
     """
 
     max_ratio: dict = {"gyr": 0.5, "acc": 0.8}
-    scale_range: tuple[float, float] = (0.5, 2.0)
+    scale_range: dict = {"gyr": (0.8, 1.25), "acc": (0.7, 1.4)}
     max_lag_s: float = 2.0
     min_span_s: float = 2.0
     min_fraction: float = 0.25
@@ -158,7 +160,7 @@ def _cause(sensor: str, cfg: GateConfig, ref_spread: float, sig: float, sv: np.n
                 f"{'late' if clock < 0 else 'early'}? align the time stamps first)")
     if ref_spread < cfg.still_ratio * sig:
         return "the reference barely moves while the sensor does (a frozen or constant pose?)"
-    if sensor == "acc" and np.isfinite(sv).all() and sv.max() < cfg.scale_range[0]:
+    if sensor == "acc" and np.isfinite(sv).all() and sv.max() < cfg.scale_range[sensor][0]:
         return ("the sensor sees a fraction of the reference's motion: the position unit is likely wrong "
                 "(millimetres read as metres?)")
     if sensor == "gyr":
@@ -212,17 +214,17 @@ def reference_gate(prep: Prepared, cfg: GateConfig = GATE) -> GateResult:
         ref_spread = float(np.sqrt(np.mean((x[rows] - x[rows].mean(0)) ** 2)))
         ratio = hr / sig if sig > 0 else np.inf
         figures[s] = SensorGate(float(ratio), tuple(float(v) for v in sv), lag * dt, hr, sig)  # type: ignore[arg-type]
-        lo, hi = cfg.scale_range
+        lo, hi = cfg.scale_range[s]
         if sig <= 0:
             problems.append(f"the {_NAME[s]} output does not change over the recording; there is nothing to align or diagnose")
         elif not ratio <= cfg.max_ratio[s]:
             clock = _clock(y, x, valid, np.asarray(sd.block), dt, cfg, s)
             problems.append(f"the reference does not explain the {_NAME[s]}: held-out residual {hr:.3g} {_UNIT[s]} against a "
-                            f"signal spread of {sig:.3g} {_UNIT[s]} (ratio {ratio:.2f}, at most {cfg.max_ratio[s]:g} accepted); "
+                            f"signal spread of {sig:.3g} {_UNIT[s]} (ratio {ratio:.2f}, at most {cfg.max_ratio[s]:g} accepted); likely cause: "
                             + _cause(s, cfg, ref_spread, sig, sv, clock))
         elif not (lo <= sv.min() and sv.max() <= hi):
             problems.append(f"the {_NAME[s]} scales fitted against the reference are {', '.join(f'{v:.3g}' for v in sv)} "
-                            f"(a MEMS part is within [{lo:g}, {hi:g}]); "
+                            f"(a MEMS part is within [{lo:g}, {hi:g}]); likely cause: "
                             + _cause(s, cfg, ref_spread, sig, sv, None))
     return GateResult(problems, figures)
 
@@ -290,9 +292,34 @@ def report_gate(report: dict, gate: GateResult | None = None, align: dict | None
     return list(dict.fromkeys(out))
 
 
-def check_reference(prep: Prepared, cfg: GateConfig = GATE) -> GateResult:
-    """:func:`reference_gate`, raising ``ValueError`` with its first problem (the CLI's one line)."""
-    g = reference_gate(prep, cfg)
-    if g.problems:
-        raise ValueError(g.problems[0])
-    return g
+ALTERNATIVES = (
+    ("quat_ref", lambda q: q[:, [3, 0, 1, 2]],
+     "the quaternions are stored scalar last (x, y, z, w) while jaxcal reads w, x, y, z: read that way the reference fits"),
+    ("pos_ref", lambda p: p / 1000.0,
+     "the positions are in millimetres, labelled metres: divided by 1000 the reference fits"),
+)
+
+
+def check_reference(rec: Recording, cfg: GateConfig = GATE) -> GateResult:
+    """:func:`reference_gate` on ``prepare(rec)``, raising ``ValueError`` with its first problem (the
+    CLI's one line). When a pose-derived reference fails, the usual mistakes are undone one at a
+    time (quaternions scalar last, millimetres as metres); if one makes the reference fit, the line
+    names it as the cause.
+
+    Raises:
+        ValueError: the reference does not explain the sensor (or ``prepare`` refuses the recording).
+    """
+    g = reference_gate(prepare(rec), cfg)
+    if not g.problems:
+        return g
+    first = g.problems[0]
+    if rec.pos_ref is not None and rec.quat_ref is not None and "likely cause: " in first:
+        for field, undo, why in ALTERNATIVES:
+            v = getattr(rec, field)
+            try:
+                alt = reference_gate(prepare(rec.replace(**{field: undo(np.asarray(v, float))})), cfg)
+            except ValueError:
+                continue
+            if not alt.problems:
+                raise ValueError(first.split("likely cause: ")[0] + "likely cause: " + why)
+    raise ValueError(first)

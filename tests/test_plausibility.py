@@ -1,0 +1,203 @@
+"""Issue 27: refuse what the data contradict (exit 2, one line, nothing written, nothing earlier touched).
+
+The reference gate of ``align`` / ``diagnose`` is tested on a real rig (BROAD 07, 20 s) made
+hostile in the ways the issue names (random or frozen quaternions, mocap 5 s late, millimetres
+labelled metres, quaternions xyzw read as wxyz, a pose track covering 2 s), and the real rigs
+(BROAD 07 and 21, TUM-VI room1) must pass it. Every refusal comes before any fit, so the file runs
+in seconds.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from jaxcal.cli import main
+from jaxcal.diagnose import prepare
+from jaxcal.diagnose.gate import GATE, check_reference, reference_gate, report_gate
+from jaxcal.recording import load_recording
+
+DATA = Path(__file__).resolve().parent.parent / "data"
+BROAD07 = DATA / "broad_07_undisturbed_fast_rotation_B" / "07_undisturbed_fast_rotation_B.npz"
+BROAD21 = DATA / "broad_21_undisturbed_fast_combined" / "21_undisturbed_fast_combined.npz"
+TUMVI = DATA / "tumvi_room1_512_16" / "room1.npz"
+needs_data = pytest.mark.skipif(not BROAD07.exists(), reason="data not present")
+
+
+def run(capsys, *argv: Any) -> tuple[int, str, str]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main([str(a) for a in argv])
+    assert not [w for w in caught if not issubclass(w.category, DeprecationWarning)], [str(w.message) for w in caught]
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def refused(capsys, argv: list, *, absent: tuple = (), untouched: tuple = (), needles: tuple = ()) -> str:
+    """Exit 2, one stderr line holding every needle, no traceback, ``absent`` paths absent,
+    ``untouched`` files byte-identical, no ``.partial`` left beside them."""
+    before = {Path(p): Path(p).read_bytes() for p in untouched}
+    got, out, err = run(capsys, *argv)
+    lines = [ln for ln in err.split("\n") if ln.strip()]
+    assert got == 2, (got, err)
+    assert len(lines) == 1 and "Traceback" not in err and out == "", err
+    for p in map(Path, absent):
+        assert not p.exists(), p
+    for p, b in before.items():
+        assert p.read_bytes() == b, p
+    for d in {Path(p).parent for p in (*absent, *untouched)}:
+        assert not [q for q in d.iterdir() if ".partial" in q.name], "temporary output left behind"
+    for n in needles:
+        assert n in lines[0], (n, lines[0])
+    return lines[0]
+
+
+# ----------------------------------------------------------------------------- hostile references
+
+
+def _crop(seconds: float = 20.0, start: float = 20.0) -> dict[str, np.ndarray]:
+    with np.load(BROAD07) as z:
+        d = {k: z[k] for k in z.files if k not in ("mag", "movement", "meta_info")}
+    t = d["t"]
+    keep = (t >= t[0] + start) & (t < t[0] + start + seconds)
+    return {k: (v[keep] if v.ndim >= 1 and len(v) == len(t) else v) for k, v in d.items()}
+
+
+def hostile(name: str, d: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The issue's contradicting references, made from a real rig's recording."""
+    n = len(d["t"])
+    fs = 1.0 / float(np.median(np.diff(d["t"])))
+    if name == "ok":
+        return d
+    if name == "random quaternions":
+        q = np.random.default_rng(0).normal(size=(n, 4))
+        return d | {"quat_ref": q / np.linalg.norm(q, axis=1, keepdims=True)}
+    if name == "constant pose":
+        return d | {"quat_ref": np.tile(d["quat_ref"][n // 2], (n, 1)), "pos_ref": np.tile(d["pos_ref"][n // 2], (n, 1))}
+    if name == "mocap 5 s late":
+        k = int(round(5.0 * fs))
+        return d | {f: np.concatenate([np.repeat(d[f][:1], k, 0), d[f][:-k]]) for f in ("pos_ref", "quat_ref")}
+    if name == "millimetres labelled metres":
+        return d | {"pos_ref": d["pos_ref"] * 1000.0}
+    if name == "xyzw read as wxyz":
+        return d | {"quat_ref": d["quat_ref"][:, [1, 2, 3, 0]]}
+    if name == "pose covers 2 s of 20 s":
+        rv = np.zeros(n, bool)
+        rv[n // 3: n // 3 + int(2 * fs)] = True
+        return d | {"ref_valid": rv, "pos_ref": np.where(rv[:, None], d["pos_ref"], np.nan),
+                    "quat_ref": np.where(rv[:, None], d["quat_ref"], np.nan)}
+    raise KeyError(name)
+
+
+HOSTILE = {  # the cause each refusal must name
+    "random quaternions": "quaternion order",
+    "constant pose": "frozen or constant pose",
+    "mocap 5 s late": "reference 5.0 s late",
+    "millimetres labelled metres": "positions are in millimetres",
+    "xyzw read as wxyz": "stored scalar last",
+    "pose covers 2 s of 20 s": "pose track that stops early",
+}
+
+
+@pytest.fixture(scope="module")
+def rigs(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("rigs")
+    if BROAD07.exists():
+        base = _crop()
+        for name in ("ok", *HOSTILE):
+            np.savez(d / (name.replace(" ", "_") + ".npz"), **hostile(name, base))
+    return d
+
+
+@needs_data
+@pytest.mark.parametrize("name", list(HOSTILE))
+def test_gate_names_the_contradiction(name, rigs):
+    """Library: the gate's figures separate the real rig from each contradicting reference."""
+    ok = reference_gate(prepare(load_recording(rigs / "ok.npz")))
+    assert not ok.problems and ok.sensors["gyr"].ratio < 0.15 and ok.sensors["acc"].ratio < 0.3, ok
+    rec = load_recording(rigs / (name.replace(" ", "_") + ".npz"))
+    g = reference_gate(prepare(rec))
+    assert g.problems, g.sensors
+    with pytest.raises(ValueError, match=HOSTILE[name]):
+        check_reference(rec)
+    if name == "millimetres labelled metres":  # the gyro still fits; the accelerometer sees 1/1000 of the motion
+        assert g.sensors["gyr"].ratio < 0.15 and max(g.sensors["acc"].scales) < 0.01, g.sensors
+    elif name == "xyzw read as wxyz":  # on this stretch the rates half fit, with scales far from 1
+        sv = g.sensors["gyr"].scales
+        assert g.sensors["gyr"].ratio > 0.15 and (min(sv) < 0.6 or max(sv) > 1.2), g.sensors
+    elif name != "pose covers 2 s of 20 s":
+        assert g.sensors["gyr"].ratio > 0.9, g.sensors  # the residual is the size of the signal
+    if name == "mocap 5 s late":
+        assert "-5.00 s" in g.problems[0]
+
+
+@needs_data
+@pytest.mark.parametrize("cmd", ["align", "diagnose", "diagnose --model-out"])
+@pytest.mark.parametrize("name", list(HOSTILE))
+def test_cli_refuses_a_contradicting_reference(name, cmd, rigs, tmp_path, capsys):
+    """``align`` and ``diagnose`` (``--model-out`` too) exit 2 before any fit: no report folder,
+    no model, an earlier model untouched."""
+    rec = rigs / (name.replace(" ", "_") + ".npz")
+    out, model = tmp_path / "out", tmp_path / "m.npz"
+    argv = [cmd.split()[0], rec, "--out", out]
+    untouched: tuple = ()
+    if "--model-out" in cmd:
+        model.write_bytes(b"earlier model")
+        argv += ["--model-out", model]
+        untouched = (model,)
+    refused(capsys, argv, absent=(out,), untouched=untouched, needles=(rec.name, HOSTILE[name]))
+
+
+@needs_data
+@pytest.mark.parametrize("path", [BROAD07, BROAD21, TUMVI], ids=["broad07", "broad21", "tumvi"])
+def test_real_rigs_pass_the_gate(path):
+    """Measured: gyro ratios 0.074 / 0.032 / 0.038, acc 0.17 / 0.04 / 0.10, scales within 1 %
+    (gyro) and 9 % (acc) of 1; the contradicting references above give 0.7-1.03."""
+    g = reference_gate(prepare(load_recording(path)))
+    assert not g.problems, g.problems
+    assert g.sensors["gyr"].ratio < 0.15 and g.sensors["acc"].ratio < 0.3, g.sensors
+    assert all(abs(s - 1) < 0.03 for s in g.sensors["gyr"].scales), g.sensors
+    assert abs(g.sensors["gyr"].lag_s) < 0.1
+
+
+def test_report_gate_ranges():
+    """After the fit: |tau| <= 2 s, |r| <= 1 m, finite figures, final residual small against the signal."""
+    good = {"baseline": {"gyr": {"rms": 0.3, "heldout_rms": 0.3}}, "final": {"gyr": {"rms": 0.01, "heldout_rms": 0.011}},
+            "effects": [{"name": "time_offset", "sensor": "gyr", "params": {"tau": 0.004}},
+                        {"name": "lever_arm", "sensor": "acc", "params": {"r": [0.01, 0.0, 0.02]}}]}
+    assert report_gate(good, align={"tau": 0.004, "r": [0.01, 0.0, 0.02], "rotation_deg": 0.1}) == []
+    bad = report_gate(good, align={"tau": 5.0, "r": [-10.3, 23.8, 154.2], "rotation_deg": float("nan")})
+    assert any("beyond 2 s" in b for b in bad) and any("lever arm 156" in b and "millimetres" in b for b in bad)
+    assert any("rotation_deg" in b for b in bad)
+    nan = good | {"final": {"gyr": {"rms": float("nan"), "heldout_rms": 0.01}}}
+    assert any("fit failed" in b for b in report_gate(nan))
+    assert GATE.max_lag_s == 2.0 and GATE.max_lever_m == 1.0  # CONVENTIONS.md's plausible ranges
+
+
+# ----------------------------------------------------------------------------- --model-out order
+
+
+@needs_data
+def test_model_out_refused_before_the_diagnosis(rigs, tmp_path, capsys):
+    """A missing or read-only folder, or the ``--out`` path itself: refused at once (no report folder)."""
+    rec, out = rigs / "ok.npz", tmp_path / "out"
+    refused(capsys, ["diagnose", rec, "--out", out, "--model-out", tmp_path / "nope" / "m.npz"],
+            absent=(out,), needles=("--model-out", "does not exist"))
+    refused(capsys, ["diagnose", rec, "--out", tmp_path / "x.npz", "--model-out", tmp_path / "x.npz"],
+            absent=(tmp_path / "x.npz",), needles=("--model-out", "--out folder"))
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(stat.S_IRUSR | stat.S_IXUSR)
+    try:
+        if os.access(ro, os.W_OK):
+            pytest.skip("running as root: a read-only folder is writable")
+        refused(capsys, ["diagnose", rec, "--out", out, "--model-out", ro / "m.npz"],
+                absent=(out,), needles=("--model-out", "not writable"))
+    finally:
+        ro.chmod(stat.S_IRWXU)
