@@ -201,3 +201,56 @@ def test_model_out_refused_before_the_diagnosis(rigs, tmp_path, capsys):
                 absent=(out,), needles=("--model-out", "not writable"))
     finally:
         ro.chmod(stat.S_IRWXU)
+
+
+# ----------------------------------------------------------------------------- noise
+
+
+def _rest(n: int = 3000, lsb_noise: float | None = 3.0, seed: int = 0) -> dict[str, np.ndarray]:
+    """A level IMU at rest in integer counts (100 Hz) with ``lsb_noise`` counts of white noise
+    (None: every sample identical, a stuck sensor)."""
+    rng = np.random.default_rng(seed)
+    acc, gyr = np.tile([0.0, 0.0, 16384.0], (n, 1)), np.tile([3.0, -2.0, 1.0], (n, 1))
+    if lsb_noise is not None:
+        acc, gyr = np.round(acc + lsb_noise * rng.standard_normal((n, 3))), np.round(gyr + lsb_noise * rng.standard_normal((n, 3)))
+    return dict(t=np.arange(n) / 100.0, acc=acc, gyr=gyr, acc_lsb_per_g=np.asarray(16384.0),
+                gyr_lsb_per_rads=np.asarray(7505.747), fs=np.asarray(100.0))
+
+
+@pytest.mark.parametrize("stretch", [[], ["--start", "0", "--end", "29"]], ids=["auto", "explicit"])
+@pytest.mark.parametrize("case,needle", [("stuck", "never changes"), ("sub-LSB", "below the quantisation floor")])
+def test_noise_refuses_a_stuck_or_unresolved_sensor(case, needle, stretch, tmp_path, capsys):
+    """A stuck sensor wrote densities of 2e-27 into imu.yaml; noise below one count is not resolved."""
+    np.savez(tmp_path / "r.npz", **_rest(lsb_noise=None if case == "stuck" else 0.2))
+    if case == "sub-LSB" and not stretch:
+        stretch = ["--start", "0", "--end", "29"]  # the detector finds no rest in the flicker; ask for it
+    refused(capsys, ["noise", tmp_path / "r.npz", "--out", tmp_path / "o", *stretch], absent=(tmp_path / "o",), needles=(needle,))
+
+
+def test_noise_above_the_floor_is_written(tmp_path, capsys):
+    """Three counts of noise: accepted; the density is the simulated one (3 LSB / sqrt(100 Hz))."""
+    import yaml
+
+    np.savez(tmp_path / "r.npz", **_rest(lsb_noise=3.0))
+    code, _, err = run(capsys, "noise", tmp_path / "r.npz", "--out", tmp_path / "o", "--start", "0", "--end", "29", "--quiet")
+    assert code == 0, err
+    y = yaml.safe_load((tmp_path / "o" / "imu.yaml").read_text())
+    want = 3.0 / 7505.747 / np.sqrt(100.0)
+    assert 0.8 * want < y["gyroscope_noise_density"] < 1.3 * want, y
+
+
+# ----------------------------------------------------------------------------- output folders
+
+
+def test_output_folders_get_the_usual_mode(tmp_path):
+    """``--out DIR`` was made 0700 (mkdtemp's mode): others on a shared machine could not read it."""
+    from jaxcal.cli.core import _output_dir
+
+    old = os.umask(0o022)
+    try:
+        with _output_dir(str(tmp_path / "o")) as d:
+            (d / "f.txt").write_text("x")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "o").stat().st_mode) == 0o755
+    assert (tmp_path / "o" / "f.txt").read_text() == "x"
