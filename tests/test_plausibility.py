@@ -254,3 +254,105 @@ def test_output_folders_get_the_usual_mode(tmp_path):
         os.umask(old)
     assert stat.S_IMODE((tmp_path / "o").stat().st_mode) == 0o755
     assert (tmp_path / "o" / "f.txt").read_text() == "x"
+
+
+# ----------------------------------------------------------------------------- imports: YAML, shapes, rotations
+
+
+def _linear_model_file(path: Path) -> Path:
+    from jaxcal.methods import CalibrationModel
+    from jaxcal.model_file import save_model
+
+    rng = np.random.default_rng(1)
+    state = {"acc": {"S": 16384.0 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 50, 3)},
+             "gyr": {"S": 7505.7 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 20, 3)}}
+    save_model(CalibrationModel("linear", ("acc", "gyr"), state, {"units": {"acc": "LSB", "gyr": "LSB"}}), path)
+    return path
+
+
+def _exported(fmt: str, tmp_path: Path) -> dict:
+    from jaxcal.export import to_kalibr, to_openvins
+    from jaxcal.model_file import load_model
+
+    m = load_model(_linear_model_file(tmp_path / "m.npz"))
+    return (to_kalibr if fmt == "kalibr" else to_openvins)(m)
+
+
+BOMB = "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+    f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8))
+
+
+def test_safe_yaml_refuses_an_alias_bomb_without_expanding_it():
+    from jaxcal.safe_yaml import YamlLimitError, load_yaml
+
+    assert load_yaml("x: &x [1, 2]\ny: *x\n") == {"x": [1, 2], "y": [1, 2]}  # small aliases still load
+    with pytest.raises(YamlLimitError, match="alias bomb"):
+        load_yaml(BOMB)  # 9^9 = 3.9e8 values if expanded
+    with pytest.raises(YamlLimitError, match="deeper"):
+        load_yaml("[" * 100 + "]" * 100)
+    with pytest.raises(YamlLimitError, match="characters"):
+        load_yaml("x: 1\n" * 300_000)
+
+
+def test_export_noise_alias_bomb_refused(tmp_path, capsys):
+    """``export --noise`` grew to 8 GB on ten lines of nested aliases."""
+    model = _linear_model_file(tmp_path / "m.npz")
+    (tmp_path / "bomb.yaml").write_text(BOMB)
+    refused(capsys, ["export", model, "--format", "kalibr", "--noise", tmp_path / "bomb.yaml", "--out", tmp_path / "o.yaml"],
+            absent=(tmp_path / "o.yaml",), needles=("--noise", "alias bomb"))
+
+
+def test_import_model_alias_bomb_and_huge_matrix_refused(tmp_path, capsys):
+    """``import-model kalibr`` built a 2.9 GiB array before its shape check."""
+    import yaml
+
+    (tmp_path / "bomb.yaml").write_text(BOMB)
+    refused(capsys, ["import-model", "kalibr", tmp_path / "bomb.yaml", "--out", tmp_path / "o.npz"],
+            absent=(tmp_path / "o.npz",), needles=("alias bomb",))
+    d = _exported("kalibr", tmp_path)
+    d["imu0"]["gyroscopes"]["M"] = [[1.0] * 3] * 20_000  # a 20000 x 3 "matrix"
+    (tmp_path / "big.yaml").write_text(yaml.safe_dump(d))
+    refused(capsys, ["import-model", "kalibr", tmp_path / "big.yaml", "--out", tmp_path / "o.npz"],
+            absent=(tmp_path / "o.npz",), needles=("gyroscopes", "M", "20000 entries"))
+
+
+ROT_CASES = {
+    "kalibr C_gyro_i twice a rotation": ("kalibr", ("gyroscopes", "C_gyro_i"), lambda R: 2.0 * R, "not orthonormal"),
+    "kalibr T_i_b determinant -1": ("kalibr", ("T_i_b",), lambda T: np.diag([1.0, 1.0, -1.0, 1.0]) @ T, "reflection"),
+    "openvins R_IMUtoACC scaled 1.5": ("openvins", ("R_IMUtoACC",), lambda R: 1.5 * R, "not orthonormal"),
+    "openvins R_IMUtoGYRO reflected": ("openvins", ("R_IMUtoGYRO",), lambda R: -R, "reflection"),
+}
+
+
+@pytest.mark.parametrize("name", list(ROT_CASES))
+def test_import_rotations_must_be_rotations(name, tmp_path, capsys):
+    """Each format defines these as rotations: a scaled one changed the sensor's scale, a reflection
+    made a left-handed frame. The unedited file imports (exit 0)."""
+    import yaml
+
+    fmt, keys, edit, needle = ROT_CASES[name]
+    d = _exported(fmt, tmp_path)
+    (tmp_path / "good.yaml").write_text(yaml.safe_dump(d))
+    code, _, err = run(capsys, "import-model", fmt, tmp_path / "good.yaml", "--out", tmp_path / "good.npz")
+    assert code == 0, err
+    node = d["imu0"]
+    for k in keys[:-1]:
+        node = node[k]
+    node[keys[-1]] = edit(np.asarray(node[keys[-1]], float)).tolist()
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(d))
+    refused(capsys, ["import-model", fmt, tmp_path / "bad.yaml", "--out", tmp_path / "o.npz"],
+            absent=(tmp_path / "o.npz",), needles=(keys[-1], "must be a rotation", needle))
+
+
+def test_imucal_example_with_version_2_0_is_accepted(tmp_path, capsys):
+    """imucal's own example calibration says "2.0" (imucal loads it); it was refused for not being "2.0.0"."""
+    from jaxcal.model_file import load_model
+
+    src = DATA / "imucal_ferraris_example" / "example_cal.json"
+    code, _, err = run(capsys, "import-model", "imucal", src, "--out", tmp_path / "m.npz")
+    assert code == 0, err
+    m = load_model(tmp_path / "m.npz")
+    assert m.method == "linear" and set(m.sensors) == {"acc", "gyr"}
+    (tmp_path / "v1.json").write_text(src.read_text().replace('"2.0"', '"1.0"'))
+    refused(capsys, ["import-model", "imucal", tmp_path / "v1.json", "--out", tmp_path / "o.npz"],
+            absent=(tmp_path / "o.npz",), needles=("_format_version",))
