@@ -356,3 +356,67 @@ def test_imucal_example_with_version_2_0_is_accepted(tmp_path, capsys):
     (tmp_path / "v1.json").write_text(src.read_text().replace('"2.0"', '"1.0"'))
     refused(capsys, ["import-model", "imucal", tmp_path / "v1.json", "--out", tmp_path / "o.npz"],
             absent=(tmp_path / "o.npz",), needles=("_format_version",))
+
+
+# ----------------------------------------------------------------------------- apply: inside the model's range
+
+
+def _poses(n: int, max_tilt_deg: float | None, seed: int) -> dict[str, np.ndarray]:
+    """Static-like labelled acc samples: directions within ``max_tilt_deg`` of z-up (None: the sphere)."""
+    rng = np.random.default_rng(seed)
+    f = rng.normal(size=(n, 3))
+    f /= np.linalg.norm(f, axis=1, keepdims=True)
+    if max_tilt_deg is not None:
+        tilt = np.radians(max_tilt_deg) * np.sqrt(rng.uniform(size=n))
+        az = rng.uniform(0, 2 * np.pi, n)
+        f = np.stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)], 1)
+    counts = np.round(f * 16384.0 + [30.0, -20.0, 10.0] + rng.normal(0, 2, (n, 3)))
+    return dict(t=np.arange(n) / 100.0, acc=counts, acc_ref=f, fs=np.asarray(100.0), acc_lsb_per_g=np.asarray(16384.0))
+
+
+def test_apply_refuses_a_cubic_model_outside_its_input_range(tmp_path, capsys):
+    """Fitted within 18 deg of z-up, applied over the sphere: refused (it was off by 1281 g); with
+    --allow-extrapolation it runs with a warning; on its own range it runs silently."""
+    np.savez(tmp_path / "cap.npz", **_poses(400, 18.0, 0))
+    np.savez(tmp_path / "sphere.npz", **_poses(400, None, 1))
+    np.savez(tmp_path / "cap2.npz", **_poses(400, 15.0, 2))
+    assert run(capsys, "calibrate", "--method", "cubic", tmp_path / "cap.npz", "--out", tmp_path / "m.npz", "-q")[0] == 0
+    (tmp_path / "o.npz").write_bytes(b"earlier")
+    refused(capsys, ["apply", tmp_path / "m.npz", tmp_path / "sphere.npz", "--out", tmp_path / "o.npz"],
+            untouched=(tmp_path / "o.npz",), needles=("outside the cubic model's fitted input range", "--allow-extrapolation"))
+    code, _, err = run(capsys, "apply", tmp_path / "m.npz", tmp_path / "sphere.npz", "--out", tmp_path / "o.npz", "-q",
+                       "--allow-extrapolation")
+    assert code == 0 and "warning" in err and "outside" in err, err
+    code, _, err = run(capsys, "apply", tmp_path / "m.npz", tmp_path / "cap2.npz", "--out", tmp_path / "o2.npz", "-q")
+    assert code == 0 and err == "", err
+    with np.load(tmp_path / "o2.npz") as z:  # inside its range the model is right (mg level)
+        assert np.max(np.abs(z["acc_cal"] - _poses(400, 15.0, 2)["acc_ref"])) < 0.01
+
+
+def _diagnosed_model(path: Path, **acc: Any) -> Path:
+    from jaxcal.methods import CalibrationModel
+    from jaxcal.model_file import save_model
+
+    state = {"acc": {"S": 16384.0 * np.eye(3), "b": np.zeros(3), **acc}}
+    meta = {"baseline": "diag", "effects": {"acc": [k for k in acc if k != "T0"]}, "not_carried": [], "notes": [],
+            "units": {"acc": "LSB"}, "temperature_range_degC": {"acc": [20.0, 35.0]}}
+    save_model(CalibrationModel("diagnosed", ("acc",), state, meta), path)
+    return path
+
+
+@pytest.mark.parametrize("case", ["Kelvin as degC", "time offset longer than the recording"])
+def test_apply_refuses_a_diagnosed_model_outside_its_range(case, tmp_path, capsys):
+    d = _poses(400, None, 3)
+    if case == "Kelvin as degC":
+        m = _diagnosed_model(tmp_path / "m.npz", temperature_bias=np.full(3, 1e-4), T0=np.asarray(27.0))
+        d["temp"] = np.full(400, 27.0 + 273.15)
+        needle = "Kelvin read as degC"
+    else:
+        m = _diagnosed_model(tmp_path / "m.npz", time_offset=np.asarray(10.0))
+        needle = "time offset 10 s"
+    np.savez(tmp_path / "r.npz", **d)
+    refused(capsys, ["apply", m, tmp_path / "r.npz", "--out", tmp_path / "o.npz"], absent=(tmp_path / "o.npz",), needles=(needle,))
+    if case == "Kelvin as degC":  # in degC it is applied
+        np.savez(tmp_path / "r2.npz", **(d | {"temp": np.full(400, 27.0)}))
+        code, _, err = run(capsys, "apply", m, tmp_path / "r2.npz", "--out", tmp_path / "o.npz", "-q")
+        assert code == 0, err
