@@ -802,9 +802,10 @@ def _matrix(d: Any, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
         raise ModelError(f"{where}: no {key}")
     v = d[key]
     if isinstance(v, (list, tuple)) and not _list_shape(v, shape):  # before any allocation
-        lens = len(v)
-        raise ModelError(f"{where}: {key} is not a {'x'.join(map(str, shape))} array (a list of {lens} entries"
-                         f"{'' if lens == shape[0] else f', not {shape[0]}'})")
+        got = _outer_shape(v)
+        if got != shape:
+            raise ModelError(f"{where}: {key} has shape {got}, expected {shape}")
+        raise ModelError(f"{where}: {key} is not a {'x'.join(map(str, shape))} array of numbers (ragged rows)")
     try:
         a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
@@ -837,6 +838,15 @@ def _list_shape(v: Any, shape: tuple[int, ...]) -> bool:
     if not shape:
         return not isinstance(v, (list, tuple, Mapping))
     return isinstance(v, (list, tuple)) and len(v) == shape[0] and all(_list_shape(x, shape[1:]) for x in v)
+
+
+def _outer_shape(v: Any) -> tuple[int, ...]:
+    """The shape of nested lists read along their first elements (no array built)."""
+    out = []
+    while isinstance(v, (list, tuple)):
+        out.append(len(v))
+        v = v[0] if v else None
+    return tuple(out)
 
 
 def _inv(M: np.ndarray, what: str, where: str) -> np.ndarray:

@@ -313,7 +313,7 @@ def test_import_model_alias_bomb_and_huge_matrix_refused(tmp_path, capsys):
     d["imu0"]["gyroscopes"]["M"] = [[1.0] * 3] * 20_000  # a 20000 x 3 "matrix"
     (tmp_path / "big.yaml").write_text(yaml.safe_dump(d))
     refused(capsys, ["import-model", "kalibr", tmp_path / "big.yaml", "--out", tmp_path / "o.npz"],
-            absent=(tmp_path / "o.npz",), needles=("gyroscopes", "M", "20000 entries"))
+            absent=(tmp_path / "o.npz",), needles=("gyroscopes", "M has shape (20000, 3), expected (3, 3)"))
 
 
 ROT_CASES = {
