@@ -420,3 +420,50 @@ def test_apply_refuses_a_diagnosed_model_outside_its_range(case, tmp_path, capsy
         np.savez(tmp_path / "r2.npz", **(d | {"temp": np.full(400, 27.0)}))
         code, _, err = run(capsys, "apply", m, tmp_path / "r2.npz", "--out", tmp_path / "o.npz", "-q")
         assert code == 0, err
+
+
+# ----------------------------------------------------------------------------- sweep
+
+
+SWEEP_CASES = {  # spec, needle; each refused before any expansion or compilation
+    "random.n = 1e9": ({"random": {"n": 10**9, "params": {"acc_lr": [1e-4, 1e-2, "log"]}}}, "1e+09 runs"),
+    "40^6 grid": ({"grid": {k: [0.1 + 0.001 * i for i in range(40)] for k in
+                            ("acc_lr", "gyr_lr", "init_lr", "w", "init_epochs", "gyr_steps")}}, "4.1e+09 runs"),
+    "dataset fs 0": ({"dataset": {"fs": 0}}, "dataset.fs = 0 must be > 0"),
+    "dataset fs in the grid 0": ({"grid": {"dataset.fs": [100.0, 0.0]}}, "dataset.fs = 0.0 must be > 0"),
+    "heatmap a string": ({"grid": {"w": [0.5, 0.9]}, "heatmap": "w"}, "heatmap: expected a list"),
+    "heatmap a number": ({"grid": {"w": [0.5, 0.9]}, "heatmap": 3}, "heatmap: expected a list"),
+}
+
+
+@pytest.mark.parametrize("name", list(SWEEP_CASES))
+def test_sweep_spec_refused_before_expansion(name, tmp_path, capsys):
+    import json
+
+    spec, needle = SWEEP_CASES[name]
+    if name == "40^6 grid":  # integer-valued names need integers
+        spec["grid"]["init_epochs"] = spec["grid"]["gyr_steps"] = list(range(40))
+        spec["grid"]["w"] = [i / 40 for i in range(40)]
+    (tmp_path / "s.json").write_text(json.dumps(spec))
+    refused(capsys, ["sweep", tmp_path / "s.json", "--out", tmp_path / "out"], absent=(tmp_path / "out",),
+            needles=(str(tmp_path / "s.json"), needle))
+
+
+def test_sweep_unwritable_out_refused(tmp_path, capsys):
+    import json
+
+    (tmp_path / "s.json").write_text(json.dumps({"grid": {"w": [0.5]}}))
+    (tmp_path / "file").write_text("x")
+    refused(capsys, ["sweep", tmp_path / "s.json", "--out", tmp_path / "file" / "sub"], untouched=(tmp_path / "file",),
+            needles=("--out", "is not a directory"))
+
+
+def test_sweep_whose_every_run_diverges_is_not_exit_0(tmp_path, capsys):
+    """Learning rates of 1e30 on a tiny dataset: every run NaN; exit 2, no table, no checkpoint, no folder."""
+    import json
+
+    spec = {"grid": {"acc_lr": [1e30, 1e35]}, "fixed": {"gyr_lr": 1e30, "init_lr": 1e30},
+            "dataset": {"n_train": 4, "n_val": 2, "n_samples": 11, "n_test_acc": 5, "n_test_gyr": 5}}
+    (tmp_path / "s.json").write_text(json.dumps(spec))
+    refused(capsys, ["sweep", tmp_path / "s.json", "--out", tmp_path / "out", "--quiet"], absent=(tmp_path / "out",),
+            needles=("every one of the 2 runs gave non-finite results",))

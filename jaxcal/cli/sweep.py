@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -30,20 +31,44 @@ def _run_sweep(args: argparse.Namespace) -> int:
     d = Path(args.out)
     if d.exists() and not d.is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a directory")
+    base = next(a for a in d.absolute().parents if a.exists()) if not d.exists() else d
+    if not base.is_dir():
+        raise UsageError(f"--out {args.out}: cannot create directory ({base} is not a directory)")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise UsageError(f"--out {args.out}: {base} is not writable")
     if not args.resume and (d / sw.CHECKPOINT).exists():
         raise UsageError(f"--out {args.out}: holds a checkpoint; add --resume to continue it, or choose another DIR")
-    n = len(sw.expand(spec))
+    n = sw.n_runs(spec)
     log = _progress(args)
     if log is not None:
         log(f"sweep {args.config}: {n} runs in {len(sw.plan(spec))} batch(es) -> {args.out}")
     t0 = time.perf_counter()
+    made = not d.exists()
     try:
         res = sw.run_sweep(spec, out_dir=d, resume=args.resume, log=log)
-    except ValueError as e:  # a checkpoint of another spec
-        raise UsageError(str(e)) from None
-    sw.write_sweep(d, res)
+        bad = sw.failed_runs(res)
+        if bad == len(res.rows):
+            _discard(d, sw.CHECKPOINT, made, args.resume)
+            raise UsageError(f"{args.config}: every one of the {bad} runs gave non-finite results (diverged?); nothing "
+                             "written: lower the learning rates or check the dataset settings")
+        sw.write_sweep(d, res)
+    except ValueError as e:  # a checkpoint of another spec, or a configuration that cannot run
+        raise UsageError(f"{args.config}: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    except OSError as e:
+        raise UsageError(f"--out {args.out}: cannot write ({e.strerror or e})") from None
+    if bad:
+        print(f"{PROG}: warning: {bad} of {len(res.rows)} runs gave non-finite results (NaN in the table)", file=sys.stderr)
     print(f"{PROG}: wrote {d / 'sweep.json'} ({len(res.rows)} runs) in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
+
+
+def _discard(d: Path, checkpoint: str, made: bool, resume: bool) -> None:
+    """Remove what this run wrote before refusing its result: its checkpoint (not a resumed one) and
+    the folder if this run created it and nothing else is in it."""
+    if not resume:
+        (d / checkpoint).unlink(missing_ok=True)
+    if made and d.is_dir() and not any(d.iterdir()):
+        d.rmdir()
 
 
 register_command(
