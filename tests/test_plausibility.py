@@ -178,6 +178,10 @@ def test_report_gate_ranges():
     nan = good | {"final": {"gyr": {"rms": float("nan"), "heldout_rms": 0.01}}}
     assert any("fit failed" in b for b in report_gate(nan))
     assert GATE.max_lag_s == 2.0 and GATE.max_lever_m == 1.0  # CONVENTIONS.md's plausible ranges
+    # the baseline's scales: a gyro scale of 0.0006 (random quaternions) multiplied the gyro by 2000 on apply
+    assert report_gate(good, scales={"gyr": np.array([1.01, 0.99, 1.0])}) == []
+    bad = report_gate(good, scales={"gyr": np.array([0.0006, 0.001, 0.002])})
+    assert len(bad) == 1 and "gyroscope scales are 0.0006" in bad[0]
 
 
 # ----------------------------------------------------------------------------- --model-out order

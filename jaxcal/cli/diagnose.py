@@ -57,7 +57,7 @@ def _gate(rec, what: str) -> object:
 
 def _run_diagnose(args: argparse.Namespace) -> int:
     from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
-    from jaxcal.diagnose.gate import report_gate
+    from jaxcal.diagnose.gate import baseline_scales, report_gate
 
     if args.model_out is not None:
         _check_model_out(args.model_out, args.out, args.recording)
@@ -69,13 +69,14 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     with _output_dir(args.out) as d:
         try:
             print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-            rep = diag.diagnose_recording(rec, baseline=args.baseline, with_figures=True, keep_fit=args.model_out is not None)
-            fit = rep.pop("_fit", None)
+            rep = diag.diagnose_recording(rec, baseline=args.baseline, with_figures=True, keep_fit=True)
+            kept = rep.pop("_fit")
+            fit = kept if args.model_out is not None else None
             figs = rep.pop("_figures", None)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
         try:
-            bad = report_gate(rep, gate)
+            bad = report_gate(rep, gate, scales=baseline_scales(kept[1], args.baseline))
             if bad:
                 raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
             diag.write_report(d, rep, figs)
@@ -119,7 +120,7 @@ def _add_align(p: argparse.ArgumentParser) -> None:
 
 def _run_align(args: argparse.Namespace) -> int:
     from jaxcal.diagnose import align as al
-    from jaxcal.diagnose.gate import report_gate
+    from jaxcal.diagnose.gate import baseline_scales, report_gate
 
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a directory")
@@ -134,7 +135,7 @@ def _run_align(args: argparse.Namespace) -> int:
             res = al.align_recording(rec, pose_sigma=args.pose_sigma)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
-        bad = report_gate(res.report, gate, res.align)
+        bad = report_gate(res.report, gate, res.align, scales=baseline_scales(res.results, "affine"))
         if bad:
             raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
         al.write_alignment(d, res)

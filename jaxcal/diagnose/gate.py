@@ -27,7 +27,7 @@ import numpy as np
 from jaxcal.diagnose.core import Prepared, prepare
 from jaxcal.recording import Recording
 
-__all__ = ["ALTERNATIVES", "GATE", "GateConfig", "GateResult", "SensorGate", "reference_gate", "report_gate", "check_reference"]
+__all__ = ["ALTERNATIVES", "GATE", "baseline_scales", "GateConfig", "GateResult", "SensorGate", "reference_gate", "report_gate", "check_reference"]
 
 
 class GateConfig(NamedTuple):
@@ -42,11 +42,14 @@ class GateConfig(NamedTuple):
         max_lag_s: the clock offset searched (s); a larger one is refused as a clock error
             (CONVENTIONS.md: |tau| <= 2 s).
         min_span_s: least time span the valid reference must cover (s).
-        clock_search_s: on a failure, the wider lag searched to tell a clock error apart (s).
         min_fraction: least fraction of the recording the valid reference must cover.
         min_rows: least number of valid reference rows (after decimation).
         still_ratio: a reference whose rate spread is below this fraction of the sensor's is frozen.
         max_lever_m: largest plausible lever arm (m).
+        clock_search_s: on a failure, the wider lag searched to tell a clock error apart (s).
+        post_scale_range: the finished diagnosis's baseline scales (``diag``: per axis; ``affine``:
+            singular values) must lie inside (wider than ``scale_range``: the ``diag`` baseline's
+            scales also carry a small frame rotation).
     """
 
     max_ratio: dict = {"gyr": 0.5, "acc": 0.8}
@@ -57,6 +60,7 @@ class GateConfig(NamedTuple):
     min_rows: int = 100
     still_ratio: float = 0.05
     clock_search_s: float = 60.0
+    post_scale_range: tuple[float, float] = (0.5, 2.0)
     max_lever_m: float = 1.0
 
 
@@ -233,7 +237,23 @@ def _num(v) -> np.ndarray:
     return np.asarray(v, float) if v is not None else np.zeros(0)
 
 
-def report_gate(report: dict, gate: GateResult | None = None, align: dict | None = None, cfg: GateConfig = GATE) -> list[str]:
+def baseline_scales(results: dict, kind: str) -> dict[str, np.ndarray]:
+    """Per sensor, the final fit's baseline scales in physical units: ``|diag|`` for the ``diag``
+    baseline, the singular values of the matrix for ``affine`` (the frame rotation factored out).
+
+    Args:
+        results: ``{sensor: SensorResult}`` of :func:`jaxcal.diagnose.core.diagnose_banded`.
+        kind: ``"diag"`` or ``"affine"``.
+    """
+    out = {}
+    for s, r in results.items():
+        beta = np.asarray(r.final_all.beta, float)
+        out[s] = np.abs(beta[:3]) if kind == "diag" else np.linalg.svd(beta[:9].reshape(3, 3), compute_uv=False)
+    return out
+
+
+def report_gate(report: dict, gate: GateResult | None = None, align: dict | None = None, cfg: GateConfig = GATE,
+                scales: dict[str, np.ndarray] | None = None) -> list[str]:
     """Plausibility of a finished diagnosis before anything is reported or written.
 
     Args:
@@ -241,6 +261,8 @@ def report_gate(report: dict, gate: GateResult | None = None, align: dict | None
         gate: :func:`reference_gate`'s result, for the signal spread (None: that check is skipped).
         align: ``align``'s ``align.json`` dict (its tau and r checked too).
         cfg: thresholds.
+        scales: :func:`baseline_scales` of the diagnosis; each must lie in ``cfg.post_scale_range``
+            (a model file with a gyro scale of 0.0006 multiplied the gyro by 2000 on apply).
 
     Returns:
         One sentence per implausible figure (empty: all plausible).
@@ -262,6 +284,12 @@ def report_gate(report: dict, gate: GateResult | None = None, align: dict | None
                     out.append(f"the diagnosed {_NAME.get(s, s)} still leaves a held-out residual of {float(hr):.3g} "
                                f"{_UNIT.get(s, '')} against a signal spread of {sig:.3g} (ratio {float(hr) / sig:.2f}); "
                                "the reference does not explain the sensor")
+    lo, hi = cfg.post_scale_range
+    for s, sv in (scales or {}).items():
+        sv = np.asarray(sv, float)
+        if not (np.isfinite(sv).all() and lo <= sv.min() and sv.max() <= hi):
+            out.append(f"the diagnosed {_NAME.get(s, s)} scales are {', '.join(f'{v:.3g}' for v in sv)} (a MEMS part is "
+                       f"within [{lo:g}, {hi:g}] of its datasheet): the reference or the datasheet scale does not fit the sensor")
     for e in report.get("effects", []) or []:
         name, p = e.get("name"), e.get("params") or {}
         if name == "time_offset" and "tau" in p and not abs(float(p["tau"])) <= cfg.max_lag_s:
