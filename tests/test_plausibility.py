@@ -471,3 +471,83 @@ def test_sweep_whose_every_run_diverges_is_not_exit_0(tmp_path, capsys):
     (tmp_path / "s.json").write_text(json.dumps(spec))
     refused(capsys, ["sweep", tmp_path / "s.json", "--out", tmp_path / "out", "--quiet"], absent=(tmp_path / "out",),
             needles=("every one of the 2 runs gave non-finite results",))
+
+
+# ----------------------------------------------------------------------------- the contract as a property
+
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+PROP = settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+
+def _contract(capsys, argv: list, out: Path, earlier: bytes | None) -> int:
+    """Exit 0 or 2 only; exit 2: one line, ``out`` absent or holding exactly the earlier bytes, no partial file."""
+    code, stdout, err = run(capsys, *argv)
+    assert code in (0, 2) and "Traceback" not in err, (code, err)
+    if code == 2:
+        assert len([ln for ln in err.splitlines() if ln.strip()]) == 1, err
+        assert (out.read_bytes() == earlier) if earlier is not None else not out.exists()
+        assert not [q for q in out.parent.iterdir() if ".partial" in q.name]
+    return code
+
+
+@PROP
+@given(fmt=st.sampled_from(["kalibr", "openvins"]), scale=st.sampled_from([1.0, 1.0 + 1e-9, 1.0 + 1e-4, 1.5, -1.0, 0.0]),
+       key=st.sampled_from(["C_gyro_i", "T_i_b", "R_IMUtoACC", "R_IMUtoGYRO"]), earlier=st.booleans())
+def test_property_imported_rotations(fmt, scale, key, earlier, tmp_path_factory, capsys):
+    """exit 0 => every rotation the file defines is one (so the imported scales are the file's M / T);
+    exit 2 => nothing written, an earlier model untouched."""
+    import yaml
+
+    from jaxcal.model_file import load_model
+
+    d_ = tmp_path_factory.mktemp("prop")
+    doc = _exported(fmt, d_)
+    imu = doc["imu0"]
+    node, k = {"C_gyro_i": (imu.get("gyroscopes"), "C_gyro_i"), "T_i_b": (imu, "T_i_b")}.get(key, (imu, key))
+    if node is not None and k in node:
+        M = np.asarray(node[k], float)
+        M[:3, :3] *= scale
+        node[k] = M.tolist()
+    (d_ / "f.yaml").write_text(yaml.safe_dump(doc))
+    out = d_ / "o.npz"
+    if earlier:
+        out.write_bytes(b"earlier")
+    code = _contract(capsys, ["import-model", fmt, d_ / "f.yaml", "--out", out], out, b"earlier" if earlier else None)
+    read = {"kalibr": ("C_gyro_i", "T_i_b"), "openvins": ("R_IMUtoACC", "R_IMUtoGYRO")}[fmt]  # OpenVINS ignores T_i_b
+    is_rotation = abs(scale - 1.0) <= 1e-7 or key not in read
+    assert (code == 0) == is_rotation, (fmt, key, scale, code)
+    if code == 0:
+        m = load_model(out)
+        for s in ("acc", "gyr"):  # the imported scales are those of the exported model (to 1e-6)
+            sv = np.linalg.svd(np.asarray(m.state[s]["S"]), compute_uv=False)
+            assert np.all(np.abs(sv / sv.mean() - 1) < 0.05), sv
+
+
+@PROP
+@given(noise=st.sampled_from([0.0, 0.05, 0.3, 1.0, 4.0]), offset=st.floats(-100, 100), earlier=st.booleans())
+def test_property_noise(noise, offset, earlier, tmp_path_factory, capsys):
+    """exit 0 => every density written is finite, positive and above the quantisation floor;
+    exit 2 => nothing written, an earlier folder untouched."""
+    import yaml
+
+    d_ = tmp_path_factory.mktemp("propn")
+    rec = _rest(lsb_noise=noise if noise > 0 else None, seed=int(abs(offset)))
+    rec["gyr"] = rec["gyr"] + np.round(offset)
+    np.savez(d_ / "r.npz", **rec)
+    out = d_ / "o"
+    if earlier:
+        out.mkdir()
+        (out / "keep.txt").write_text("earlier")
+    code, _, err = run(capsys, "noise", d_ / "r.npz", "--out", out, "--start", "0", "--end", "29", "--quiet")
+    assert code in (0, 2) and "Traceback" not in err, err
+    if code == 2:
+        assert len(err.strip().splitlines()) == 1
+        assert (sorted(p.name for p in out.iterdir()) == ["keep.txt"]) if earlier else not out.exists()
+        assert noise < 1.0, err  # a resolved sensor is never refused
+        return
+    y = yaml.safe_load((out / "imu.yaml").read_text())
+    floor_g = (1.0 / 7505.747) / np.sqrt(12 * 100.0)
+    assert np.isfinite(y["gyroscope_noise_density"]) and y["gyroscope_noise_density"] >= floor_g, (noise, y)
+    assert y["accelerometer_noise_density"] >= (9.80665 / 16384.0) / np.sqrt(12 * 100.0), (noise, y)
