@@ -39,6 +39,8 @@ def _check_model_out(model_out: str, out: str, recording: str) -> None:
     parent = m.parent
     if parent == o:
         return  # written after the report folder is published
+    if parent.exists() and not parent.is_dir():
+        raise UsageError(f"--model-out {model_out}: {parent} is not a folder")
     if not parent.is_dir():
         raise UsageError(f"--model-out {model_out}: folder {parent} does not exist")
     if not os.access(parent, os.W_OK | os.X_OK):

@@ -164,6 +164,9 @@ def _cause(sensor: str, cfg: GateConfig, ref_spread: float, sig: float, sv: np.n
                 f"{'late' if clock < 0 else 'early'}? align the time stamps first)")
     if ref_spread < cfg.still_ratio * sig:
         return "the reference barely moves while the sensor does (a frozen or constant pose?)"
+    if sig < cfg.still_ratio * ref_spread:
+        return (f"the {_NAME[sensor]} barely moves while the reference does (a stuck or wrong sensor channel, or a "
+                "reference of another body?)")
     if sensor == "acc" and np.isfinite(sv).all() and sv.max() < cfg.scale_range[sensor][0]:
         return ("the sensor sees a fraction of the reference's motion: the position unit is likely wrong "
                 "(millimetres read as metres?)")
@@ -323,16 +326,20 @@ def report_gate(report: dict, gate: GateResult | None = None, align: dict | None
 ALTERNATIVES = (
     ("quat_ref", lambda q: q[:, [3, 0, 1, 2]],
      "the quaternions are stored scalar last (x, y, z, w) while jaxcal reads w, x, y, z: read that way the reference fits"),
+    ("quat_ref", lambda q: q * np.array([1.0, -1.0, -1.0, -1.0]),
+     "the quaternions are world to body (conjugated) while jaxcal reads body to world: conjugated the reference fits"),
     ("pos_ref", lambda p: p / 1000.0,
      "the positions are in millimetres, labelled metres: divided by 1000 the reference fits"),
+    ("pos_ref", lambda p: p / 100.0,
+     "the positions are in centimetres, labelled metres: divided by 100 the reference fits"),
 )
 
 
 def check_reference(rec: Recording, cfg: GateConfig = GATE) -> GateResult:
     """:func:`reference_gate` on ``prepare(rec)``, raising ``ValueError`` with its first problem (the
     CLI's one line). When a pose-derived reference fails, the usual mistakes are undone one at a
-    time (quaternions scalar last, millimetres as metres); if one makes the reference fit, the line
-    names it as the cause.
+    time (quaternions scalar last or conjugated, millimetres or centimetres as metres); if one makes
+    the reference fit, the line names it as the cause.
 
     Raises:
         ValueError: the reference does not explain the sensor (or ``prepare`` refuses the recording).
