@@ -54,6 +54,8 @@ import itertools
 import json
 import math
 import os
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -1069,7 +1071,9 @@ def _write_heatmap(path: Path, result: SweepResult, axes: tuple[str, str]) -> No
 
 
 def write_sweep(out_dir: str | os.PathLike, result: SweepResult) -> list[Path]:
-    """Write ``sweep.json``, ``sweep.md`` and (two swept names or more) ``sweep_heatmap.png``, each atomically.
+    """Write ``sweep.json``, ``sweep.md`` and (two swept names or more) ``sweep_heatmap.png``: all three
+    finished in a temporary folder inside ``out_dir`` first, then moved into place (an earlier heatmap
+    removed when this sweep has none), so an interruption leaves the earlier results whole.
 
     Args:
         out_dir: the directory (created if needed).
@@ -1080,13 +1084,20 @@ def write_sweep(out_dir: str | os.PathLike, result: SweepResult) -> list[Path]:
     """
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    _write_json(d / "sweep.json", {"spec": spec_to_dict(result.spec), "names": list(result.names),
-                                   "rows": result.rows, "timing": result.timing})
-    with atomic_output(d / "sweep.md") as tmp:
-        tmp.write_text(_markdown(result))
-    written = [d / "sweep.json", d / "sweep.md"]
-    axes = _heatmap_axes(result)
-    if axes is not None:
-        _write_heatmap(d / "sweep_heatmap.png", result, axes)
-        written.append(d / "sweep_heatmap.png")
-    return written
+    tmp = Path(tempfile.mkdtemp(prefix=".sweep.", suffix=".partial", dir=d))
+    try:  # every file finished beside the folder first: an interruption leaves the earlier results whole
+        names = ["sweep.md", "sweep.json"]
+        _write_json(tmp / "sweep.json", {"spec": spec_to_dict(result.spec), "names": list(result.names),
+                                         "rows": result.rows, "timing": result.timing})
+        (tmp / "sweep.md").write_text(_markdown(result))
+        axes = _heatmap_axes(result)
+        if axes is not None:
+            _write_heatmap(tmp / "sweep_heatmap.png", result, axes)
+            names.insert(0, "sweep_heatmap.png")
+        else:  # an earlier sweep's heatmap would not describe these results
+            (d / "sweep_heatmap.png").unlink(missing_ok=True)
+        for n in names:  # sweep.json, the record, last
+            os.replace(tmp / n, d / n)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return [d / n for n in ("sweep.json", "sweep.md", "sweep_heatmap.png") if n in names]

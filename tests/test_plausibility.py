@@ -561,3 +561,50 @@ def test_property_noise(noise, offset, earlier, tmp_path_factory, capsys):
     floor_g = (1.0 / 7505.747) / np.sqrt(12 * 100.0)
     assert np.isfinite(y["gyroscope_noise_density"]) and y["gyroscope_noise_density"] >= floor_g, (noise, y)
     assert y["accelerometer_noise_density"] >= (9.80665 / 16384.0) / np.sqrt(12 * 100.0), (noise, y)
+
+
+def test_sweep_lock_refuses_a_second_writer_and_takes_over_a_stale_one(tmp_path, capsys):
+    """Two concurrent sweeps into one folder overwrote each other: the second is refused while the
+    first's process lives; a lock left by a killed sweep (its process gone) is taken over."""
+    import json
+
+    from jaxcal.cli.sweep import _lock, _lock_path
+
+    (tmp_path / "s.json").write_text(json.dumps({"grid": {"acc_lr": [1e30, 1e35]}, "fixed": {"gyr_lr": 1e30, "init_lr": 1e30},
+                                                 "dataset": {"n_train": 4, "n_val": 2, "n_samples": 11, "n_test_acc": 5,
+                                                             "n_test_gyr": 5}}))
+    out = tmp_path / "out"
+    f = _lock_path(out)
+    with _lock(out):  # this process holds it; a second writer must be refused: fake one with our parent's pid
+        assert f.read_text() == str(os.getpid())
+        f.write_text(str(os.getppid()))  # a live process that is not us
+        refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,), needles=("another sweep", "process"))
+        f.write_text(str(os.getpid()))
+    assert not f.exists()
+    f.write_text("999999999")  # a process that does not exist: stale, taken over (the run then fails on its NaNs)
+    refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,), needles=("non-finite",))
+    assert not f.exists()
+
+
+def test_sweep_results_published_together(tmp_path, monkeypatch):
+    """A failure while the heatmap is drawn leaves the earlier sweep.json / sweep.md whole (they were
+    replaced with new files and the heatmap dropped)."""
+    from jaxcal import sweep as sw
+
+    spec = sw.SweepSpec(grid={"w": [0.5, 0.9], "acc_lr": [1e-3, 2e-3]})
+    rows = [{"group": "g", "w": w, "acc_lr": a, "seed": 0, **{k: 1.0 for k, _ in sw.TARGETS["online-thesis"].metrics}}
+            for w in (0.5, 0.9) for a in (1e-3, 2e-3)]
+    res = sw.SweepResult(spec, ("w", "acc_lr"), rows, {"total_s": 1.0})
+    written = sw.write_sweep(tmp_path, res)
+    assert [p.name for p in written] == ["sweep.json", "sweep.md", "sweep_heatmap.png"]
+    before = {p.name: p.read_bytes() for p in written}
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sw, "_write_heatmap", boom)
+    rows2 = [r | {"test_gyr_mrads": 2.0} for r in rows]
+    with pytest.raises(KeyboardInterrupt):
+        sw.write_sweep(tmp_path, res._replace(rows=rows2))
+    assert {p.name: p.read_bytes() for p in written} == before
+    assert not [p for p in tmp_path.iterdir() if ".partial" in p.name]

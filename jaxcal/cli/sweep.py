@@ -44,6 +44,66 @@ def _run_sweep(args: argparse.Namespace) -> int:
         log(f"sweep {args.config}: {n} runs in {len(sw.plan(spec))} batch(es) -> {args.out}")
     t0 = time.perf_counter()
     made = not d.exists()
+    with _lock(d):
+        return _sweep_locked(args, sw, spec, d, made, log, t0)
+
+
+def _lock(d: Path):
+    """A lock on ``--out DIR`` for the whole run (a file in the system's temporary folder named after
+    DIR's absolute path, holding the writer's process id, so nothing is added beside DIR): a second
+    sweep into the same folder is refused while the first runs; a lock whose process is gone (a
+    killed sweep) is taken over, so ``--resume`` works after a kill."""
+    import contextlib
+
+    lock = _lock_path(d)
+
+    @contextlib.contextmanager
+    def held():
+        for _ in range(2):
+            try:
+                fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                try:
+                    pid = int(lock.read_text().strip() or "0")
+                except (OSError, ValueError):
+                    pid = 0
+                if pid > 0 and pid != os.getpid() and _alive(pid):
+                    raise UsageError(f"--out {d}: another sweep (process {pid}) is writing this folder; wait for it "
+                                     f"or choose another DIR (its lock: {lock})") from None
+                lock.unlink(missing_ok=True)  # stale: its process is gone
+                continue
+            except OSError as e:
+                raise UsageError(f"--out {d}: cannot create its lock {lock} ({e.strerror or e})") from None
+            with os.fdopen(fd, "w") as fh:
+                fh.write(str(os.getpid()))
+            break
+        try:
+            yield
+        finally:
+            lock.unlink(missing_ok=True)
+
+    return held()
+
+
+def _lock_path(d: Path) -> Path:
+    """The lock file of ``--out d``: in the system's temporary folder, named after d's absolute path."""
+    import hashlib
+    import tempfile
+
+    return Path(tempfile.gettempdir()) / f"jaxcal-sweep-{hashlib.sha1(str(d.resolve()).encode()).hexdigest()[:16]}.lock"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _sweep_locked(args, sw, spec, d: Path, made: bool, log, t0: float) -> int:
     try:
         res = sw.run_sweep(spec, out_dir=d, resume=args.resume, log=log)
         bad = sw.failed_runs(res)
