@@ -7,9 +7,13 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _output_dir, _real, _same_file, register_command
-from jaxcal.recording import load_recording
+from jaxcal.recording import Recording, load_recording
+
+if TYPE_CHECKING:  # annotations only: jaxcal.diagnose is imported on use
+    from jaxcal.diagnose.gate import GateResult
 
 __all__: list[str] = []
 
@@ -47,7 +51,7 @@ def _check_model_out(model_out: str, out: str, recording: str) -> None:
         raise UsageError(f"--model-out {model_out}: folder {parent} is not writable")
 
 
-def _gate(rec, what: str) -> object:
+def _gate(rec: Recording, what: str) -> GateResult:
     """The reference gate (:mod:`jaxcal.diagnose.gate`) before any fit: one line on refusal."""
     from jaxcal.diagnose.gate import check_reference
 

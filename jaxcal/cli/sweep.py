@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from types import ModuleType
+from typing import Any
 
 from jaxcal.cli.core import PROG, Command, UsageError, _progress, register_command
 
@@ -48,17 +52,15 @@ def _run_sweep(args: argparse.Namespace) -> int:
         return _sweep_locked(args, sw, spec, d, made, log, t0)
 
 
-def _lock(d: Path):
+def _lock(d: Path) -> contextlib.AbstractContextManager[None]:
     """A lock on ``--out DIR`` for the whole run (a file in the system's temporary folder named after
     DIR's absolute path, holding the writer's process id, so nothing is added beside DIR): a second
     sweep into the same folder is refused while the first runs; a lock whose process is gone (a
     killed sweep) is taken over, so ``--resume`` works after a kill."""
-    import contextlib
-
     lock = _lock_path(d)
 
     @contextlib.contextmanager
-    def held():
+    def held() -> Iterator[None]:
         for _ in range(2):
             try:
                 fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
@@ -103,7 +105,8 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def _sweep_locked(args, sw, spec, d: Path, made: bool, log, t0: float) -> int:
+def _sweep_locked(args: argparse.Namespace, sw: ModuleType, spec: Any, d: Path, made: bool,
+                  log: Callable[[str], None] | None, t0: float) -> int:
     try:
         res = sw.run_sweep(spec, out_dir=d, resume=args.resume, log=log)
         bad = sw.failed_runs(res)
