@@ -176,6 +176,22 @@ def test_real_rigs_pass_the_gate(path):
     assert abs(g.sensors["gyr"].lag_s) < 0.1
 
 
+def test_gate_does_not_judge_a_rig_at_rest():
+    """Neither sensor nor reference moves: nothing to judge by, so no refusal (the diagnosis reports
+    what it can); the same rest with a moving sensor is a frozen reference."""
+    from jaxcal.recording import recording_from_dict
+
+    n = 2000
+    rng = np.random.default_rng(0)
+    rest = {"t": np.arange(n) / 100.0, "acc": np.array([0.0, 0.0, 1.0]) + 1e-3 * rng.normal(size=(n, 3)),
+            "gyr": 2e-3 * rng.normal(size=(n, 3)), "acc_unit": "g", "gyr_unit": "rad/s",
+            "pos_ref": np.zeros((n, 3)), "quat_ref": np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))}
+    assert reference_gate(prepare(recording_from_dict(rest))).problems == []
+    moving = rest | {"gyr": np.c_[np.sin(np.arange(n) / 20.0), np.zeros((n, 2))]}
+    g = reference_gate(prepare(recording_from_dict(moving)))
+    assert g.problems and "frozen or constant pose" in g.problems[0]
+
+
 def test_report_gate_ranges():
     """After the fit: |tau| <= 2 s, |r| <= 1 m, finite figures, final residual small against the signal."""
     good = {"baseline": {"gyr": {"rms": 0.3, "heldout_rms": 0.3}}, "final": {"gyr": {"rms": 0.01, "heldout_rms": 0.011}},

@@ -50,6 +50,8 @@ class GateConfig(NamedTuple):
         post_scale_range: the finished diagnosis's baseline scales (``diag``: per axis; ``affine``:
             singular values) must lie inside (wider than ``scale_range``: the ``diag`` baseline's
             scales also carry a small frame rotation).
+        min_spread: per sensor (rad/s, g), when neither the sensor nor its reference spreads this
+            much, the fit is not judged (a rig at rest or barely moving: the noise would decide).
     """
 
     max_ratio: dict = {"gyr": 0.5, "acc": 0.8}
@@ -61,6 +63,7 @@ class GateConfig(NamedTuple):
     still_ratio: float = 0.05
     clock_search_s: float = 60.0
     post_scale_range: tuple[float, float] = (0.5, 2.0)
+    min_spread: dict = {"gyr": 0.05, "acc": 0.02}
     max_lever_m: float = 1.0
 
 
@@ -222,6 +225,8 @@ def reference_gate(prep: Prepared, cfg: GateConfig = GATE) -> GateResult:
         ratio = hr / sig if sig > 0 else np.inf
         figures[s] = SensorGate(float(ratio), tuple(float(v) for v in sv), lag * dt, hr, sig)  # type: ignore[arg-type]
         lo, hi = cfg.scale_range[s]
+        if sig < cfg.min_spread[s] and ref_spread < cfg.min_spread[s]:
+            continue  # neither moves: nothing to judge the reference by (the diagnosis says what it can)
         if sig <= 0:
             problems.append(f"the {_NAME[s]} output does not change over the recording; there is nothing to align or diagnose")
         elif not ratio <= cfg.max_ratio[s]:
