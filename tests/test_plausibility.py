@@ -488,16 +488,6 @@ def test_sweep_unwritable_out_refused(tmp_path, capsys):
             needles=("--out", "is not a directory"))
 
 
-def test_sweep_whose_every_run_diverges_is_not_exit_0(tmp_path, capsys):
-    """Learning rates of 1e30 on a tiny dataset: every run NaN; exit 2, no table, no checkpoint, no folder."""
-    import json
-
-    spec = {"grid": {"acc_lr": [1e30, 1e35]}, "fixed": {"gyr_lr": 1e30, "init_lr": 1e30},
-            "dataset": {"n_train": 4, "n_val": 2, "n_samples": 11, "n_test_acc": 5, "n_test_gyr": 5}}
-    (tmp_path / "s.json").write_text(json.dumps(spec))
-    refused(capsys, ["sweep", tmp_path / "s.json", "--out", tmp_path / "out", "--quiet"], absent=(tmp_path / "out",),
-            needles=("every one of the 2 runs gave non-finite results",))
-
 
 # ----------------------------------------------------------------------------- the contract as a property
 
@@ -551,7 +541,7 @@ def test_property_imported_rotations(fmt, scale, key, earlier, tmp_path_factory,
             assert np.all(np.abs(sv / sv.mean() - 1) < 0.05), sv
 
 
-@PROP
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(noise=st.sampled_from([0.0, 0.05, 0.3, 1.0, 4.0]), offset=st.floats(-100, 100), earlier=st.booleans())
 def test_property_noise(noise, offset, earlier, tmp_path_factory, capsys):
     """exit 0 => every density written is finite, positive and above the quantisation floor;
@@ -579,9 +569,11 @@ def test_property_noise(noise, offset, earlier, tmp_path_factory, capsys):
     assert y["accelerometer_noise_density"] >= (9.80665 / 16384.0) / np.sqrt(12 * 100.0), (noise, y)
 
 
-def test_sweep_lock_refuses_a_second_writer_and_takes_over_a_stale_one(tmp_path, capsys):
+def test_sweep_lock_and_a_sweep_whose_every_run_diverges(tmp_path, capsys):
     """Two concurrent sweeps into one folder overwrote each other: the second is refused while the
-    first's process lives; a lock left by a killed sweep (its process gone) is taken over."""
+    first's process lives; a lock left by a killed sweep (its process gone) is taken over. That run
+    (learning rates of 1e30 on a tiny dataset: every run NaN) exits 2, not 0: no table, no
+    checkpoint, no folder, the lock released."""
     import json
 
     from jaxcal.cli.sweep import _lock, _lock_path
@@ -598,7 +590,8 @@ def test_sweep_lock_refuses_a_second_writer_and_takes_over_a_stale_one(tmp_path,
         f.write_text(str(os.getpid()))
     assert not f.exists()
     f.write_text("999999999")  # a process that does not exist: stale, taken over (the run then fails on its NaNs)
-    refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,), needles=("non-finite",))
+    refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,),
+            needles=("every one of the 2 runs gave non-finite results",))
     assert not f.exists()
 
 
