@@ -288,7 +288,8 @@ def implausible_noise(s: str, x: Float[Array, "N C"], noise: SensorNoise, fs: fl
     densities of 2e-27 into ``imu.yaml``, which a filter would trust absolutely).
 
     Refused: an axis whose every sample is identical (a stuck or constant sensor: no noise can be
-    measured), a density that is not finite and positive, and a white noise density below the
+    measured), a density that is not finite and positive, one implying a per-sample spread
+    ``N sqrt(fs)`` over 3 x the stretch's own standard deviation, and a white noise density below the
     quantisation floor ``q / sqrt(12 fs)`` (q: the output's resolution; the rounding alone puts
     that much white noise on every sample, so a smaller density was not resolved).
 
@@ -311,6 +312,11 @@ def implausible_noise(s: str, x: Float[Array, "N C"], noise: SensorNoise, fs: fl
     for c in range(x.shape[1]):
         if not (np.isfinite(N[c]) and N[c] > 0):
             return f"{s} axis {axes[c]}: white noise density {N[c]:.3g} could not be measured on this stretch"
+        sd = float(np.std(x[:, c]))
+        if N[c] * np.sqrt(fs) > 3.0 * sd:
+            return (f"{s} axis {axes[c]}: white noise density {N[c]:.3g} {unit}/sqrt(Hz) implies a sample spread of "
+                    f"{N[c] * np.sqrt(fs):.3g} {unit} at {fs:g} Hz, over 3 x the stretch's own {sd:.3g}: the fit does not "
+                    "describe these samples (a wrong sample rate?)")
         if N[c] < floor[c]:
             return (f"{s} axis {axes[c]}: white noise density {N[c]:.3g} {unit}/sqrt(Hz) is below the quantisation floor "
                     f"{floor[c]:.3g} (resolution {q[c]:.3g} {unit} at {fs:g} Hz): the output barely changes, so its noise "
@@ -553,7 +559,7 @@ def allan_figure(rep: NoiseReport, title: str = ""):
         ax.set_ylabel(f"Allan deviation [{SI_UNITS[s]['signal']}]")
         ax.set_title(f"{s}: N (--), 0.664 B (:), K (-.; dotted = upper bound)", fontsize=9)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="lower left")  # loc="best" warns (a stderr line) when placing it is slow
     if title:
         fig.suptitle(title, fontsize=10)
     return fig

@@ -269,6 +269,19 @@ def test_noise_above_the_floor_is_written(tmp_path, capsys):
     assert 0.8 * want < y["gyroscope_noise_density"] < 1.3 * want, y
 
 
+def test_noise_density_against_the_stretch_spread():
+    """A density whose white noise alone would spread the samples 3 x wider than they are is refused."""
+    from jaxcal.noise import implausible_noise, sensor_noise
+
+    x = 1e-3 * np.random.default_rng(0).normal(size=(3000, 3))
+    nz = sensor_noise(x, 100.0)
+    assert implausible_noise("gyr", x, nz, 100.0, "rad/s") is None
+    assert 0.8e-4 < float(nz.params.N[0]) < 1.2e-4  # 1e-3 rad/s at 100 Hz: N = 1e-4 rad/s/sqrt(Hz)
+    big = nz._replace(params=nz.params._replace(N=np.full(3, 1e-3)))
+    why = implausible_noise("gyr", x, big, 100.0, "rad/s")
+    assert why is not None and "over 3 x the stretch's own" in why
+
+
 # ----------------------------------------------------------------------------- output folders
 
 
