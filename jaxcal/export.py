@@ -65,6 +65,7 @@ from jaxcal.arrays import Array
 from jaxcal.constants import G0, PHYS_UNIT
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.methods.base import GSENS_KEY, MAX_CONDITION, affine_state, apply_linear_state, check_linear_state, gsens_of
+from jaxcal.safe_yaml import YamlLimitError, load_yaml
 from jaxcal.sensor import LinearCal
 
 __all__ = [
@@ -787,7 +788,9 @@ def read_document(fmt: str, text: str) -> Any:
             return json.loads(text)
         if text.startswith("%YAML:"):
             text = text.split("\n", 1)[1] if "\n" in text else ""
-        return yaml.safe_load(text)
+        return load_yaml(text)
+    except YamlLimitError as e:
+        raise ModelError(f"YAML refused: {e}") from None
     except (ValueError, yaml.YAMLError) as e:
         first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
         raise ModelError(f"not valid {'JSON' if fmt in ('imucal', 'json') else 'YAML'} ({first})") from None
@@ -797,8 +800,14 @@ def _matrix(d: Any, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
     """``d[key]`` as a finite float64 array of ``shape`` (one-line :class:`ModelError` otherwise)."""
     if not isinstance(d, Mapping) or key not in d or d[key] is None:
         raise ModelError(f"{where}: no {key}")
+    v = d[key]
+    if isinstance(v, (list, tuple)) and not _list_shape(v, shape):  # before any allocation
+        got = _outer_shape(v)
+        if got != shape:
+            raise ModelError(f"{where}: {key} has shape {got}, expected {shape}")
+        raise ModelError(f"{where}: {key} is not a {'x'.join(map(str, shape))} array of numbers (ragged rows)")
     try:
-        a = np.asarray(d[key], dtype=np.float64)
+        a = np.asarray(v, dtype=np.float64)
     except (TypeError, ValueError):
         raise ModelError(f"{where}: {key} is not a {'x'.join(map(str, shape))} array of numbers") from None
     if a.shape != shape:
@@ -806,6 +815,38 @@ def _matrix(d: Any, key: str, shape: tuple[int, ...], where: str) -> np.ndarray:
     if not np.all(np.isfinite(a)):
         raise ModelError(f"{where}: {key} has a non-finite value")
     return a
+
+
+ROTATION_TOL = 1e-6  # |R R^T - I| and |det R - 1| of a matrix a format defines as a rotation
+
+
+def _rotation(R: np.ndarray, key: str, where: str) -> np.ndarray:
+    """``R`` if it is a rotation (orthonormal, determinant +1, within :data:`ROTATION_TOL`); a one-line
+    :class:`ModelError` otherwise (a scaled one would change the sensor's scale, a reflection would
+    make a left-handed frame)."""
+    err = float(np.max(np.abs(R @ R.T - np.eye(3))))
+    det = float(np.linalg.det(R))
+    if err > ROTATION_TOL or abs(det - 1.0) > ROTATION_TOL:
+        what = ("a reflection (determinant -1: a left-handed frame)" if det < 0 else
+                f"not orthonormal (|R R^T - I| = {err:.3g}, determinant {det:.6g})")
+        raise ModelError(f"{where}: {key} must be a rotation, but it is {what}")
+    return R
+
+
+def _list_shape(v: Any, shape: tuple[int, ...]) -> bool:
+    """Whether nested lists ``v`` have exactly ``shape`` (checked before any array is built)."""
+    if not shape:
+        return not isinstance(v, (list, tuple, Mapping))
+    return isinstance(v, (list, tuple)) and len(v) == shape[0] and all(_list_shape(x, shape[1:]) for x in v)
+
+
+def _outer_shape(v: Any) -> tuple[int, ...]:
+    """The shape of nested lists read along their first elements (no array built)."""
+    out = []
+    while isinstance(v, (list, tuple)):
+        out.append(len(v))
+        v = v[0] if v else None
+    return tuple(out)
 
 
 def _inv(M: np.ndarray, what: str, where: str) -> np.ndarray:
@@ -849,6 +890,13 @@ def _input_unit(sensor: str, unit: Any, what: str, notes: list[str]) -> tuple[st
     return "LSB", 1.0
 
 
+def _imucal_version_ok(v: Any) -> bool:
+    """imucal's format 2 in any spelling it writes or reads (``"2.0.0"``, its own example's ``"2.0"``)."""
+    if not isinstance(v, str) or not re.fullmatch(r"\d+(\.\d+){0,2}", v.strip()):
+        return False
+    return int(v.strip().split(".")[0]) == int(IMUCAL_FORMAT_VERSION.split(".")[0])
+
+
 def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     """imucal's ``FerrarisCalibrationInfo`` / ``TurntableCalibrationInfo`` JSON as a ``linear`` model.
 
@@ -864,7 +912,7 @@ def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
         drop_g_sensitivity: import a non-zero ``K_ga`` as zero (with a note).
 
     Raises:
-        ModelError: not an imucal Ferraris/Turntable CalibrationInfo of format 2.0.0, a missing or
+        ModelError: not an imucal Ferraris/Turntable CalibrationInfo of format 2 (2.0.0, 2.0), a missing or
             malformed matrix, or an output unit jaxcal does not know (one line).
     """
     where = "imucal CalibrationInfo"
@@ -872,8 +920,8 @@ def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
         raise ModelError(f"{where}: no 'cal_type' key (not a file written by imucal's CalibrationInfo.to_json_file)")
     if doc["cal_type"] not in ("Ferraris", "Turntable"):
         raise ModelError(f"{where}: cal_type {doc['cal_type']!r} is not one jaxcal reads (Ferraris, Turntable)")
-    if doc.get("_format_version") != IMUCAL_FORMAT_VERSION:
-        raise ModelError(f"{where}: _format_version {doc.get('_format_version')!r} is not {IMUCAL_FORMAT_VERSION} "
+    if not _imucal_version_ok(doc.get("_format_version")):
+        raise ModelError(f"{where}: _format_version {doc.get('_format_version')!r} is not {IMUCAL_FORMAT_VERSION} (nor another spelling of format 2) "
                          "(convert older files with imucal.legacy first)")
     notes: list[str] = []
     fwd, units = {}, {}
@@ -988,10 +1036,12 @@ def from_kalibr(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     if np.any(T[:3, 3]):
         raise ModelError(f"{where}: T_i_b has a translation (lever arm {T[:3, 3].tolist()} m), which a jaxcal "
                          "linear model cannot hold")
-    C_i_b = T[:3, :3]
+    if np.any(T[3] != [0.0, 0.0, 0.0, 1.0]):
+        raise ModelError(f"{where}: T_i_b's last row is {T[3].tolist()}, not [0, 0, 0, 1] (not a rigid transform)")
+    C_i_b = _rotation(T[:3, :3], "T_i_b's rotation", where)
     M_a = _matrix(imu.get("accelerometers"), "M", (3, 3), f"{where} accelerometers")
     M_g = _matrix(imu.get("gyroscopes"), "M", (3, 3), f"{where} gyroscopes")
-    C_gyro_i = _matrix(imu.get("gyroscopes"), "C_gyro_i", (3, 3), f"{where} gyroscopes")
+    C_gyro_i = _rotation(_matrix(imu.get("gyroscopes"), "C_gyro_i", (3, 3), f"{where} gyroscopes"), "C_gyro_i", f"{where} gyroscopes")
     notes: list[str] = []
     A = _matrix(imu.get("gyroscopes"), "A", (3, 3), f"{where} gyroscopes")
     keep = _g_sensitivity(A, "A", where, drop_g_sensitivity, notes)
@@ -1029,6 +1079,8 @@ def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     mats = {}
     for key in ("Tw", "R_IMUtoGYRO", "Ta", "R_IMUtoACC", "Tg"):
         mats[key] = _matrix(imu, key, (3, 3), where)
+        if key.startswith("R_"):
+            _rotation(mats[key], key, where)
     for key in ("Tw", "Ta"):
         if np.any(np.triu(mats[key], 1)):
             raise ModelError(f"{where}: {key} is not lower triangular (OpenVINS's kalibr model keeps only the lower "

@@ -44,6 +44,8 @@ __all__ = [
     "SensorNoise",
     "NoiseReport",
     "sensor_si",
+    "quantisation_step",
+    "implausible_noise",
     "static_stretch",
     "not_static_reason",
     "adev_ci",
@@ -269,6 +271,59 @@ def sensor_noise(x: Float[Array, "N C"], fs: float, taus_per_decade: int = 10, l
     return SensorNoise(res, lo, hi, p, np.where(np.isfinite(p.K), p.K, bound))
 
 
+def quantisation_step(x: Float[Array, "N C"]) -> Float[np.ndarray, " C"]:
+    """Per axis, the smallest positive difference between two distinct sample values (the output's
+    resolution: one LSB for counts; about 0 for float data with noise below its resolution)."""
+    x = np.asarray(x, np.float64)
+    out = np.zeros(x.shape[1])
+    for c in range(x.shape[1]):
+        d = np.diff(np.unique(x[:, c]))
+        d = d[d > 0]
+        out[c] = float(d.min()) if d.size else 0.0
+    return out
+
+
+def implausible_noise(s: str, x: Float[Array, "N C"], noise: SensorNoise, fs: float, unit: str) -> str | None:
+    """Why one sensor's noise figures must not be written, or None (issue 27: a stuck sensor wrote
+    densities of 2e-27 into ``imu.yaml``, which a filter would trust absolutely).
+
+    Refused: an axis whose every sample is identical (a stuck or constant sensor: no noise can be
+    measured), a density that is not finite and positive, one implying a per-sample spread
+    ``N sqrt(fs)`` over 3 x the stretch's own standard deviation, and a white noise density below the
+    quantisation floor ``q / sqrt(12 fs)`` (q: the output's resolution; the rounding alone puts
+    that much white noise on every sample, so a smaller density was not resolved).
+
+    Args:
+        s: ``"acc"`` or ``"gyr"``.
+        x: (N, 3) the stretch in SI units.
+        noise: :func:`sensor_noise`'s result on it.
+        fs: sample rate (Hz).
+        unit: the SI unit of ``x`` (for the message).
+    """
+    x = np.asarray(x, np.float64)
+    axes = "xyz"
+    for c in range(x.shape[1]):
+        if np.ptp(x[:, c]) == 0.0:
+            return (f"{s} axis {axes[c]} never changes over the stretch (every sample {x[0, c]:.6g} {unit}): a stuck "
+                    "sensor or a constant file; its noise cannot be measured")
+    q = quantisation_step(x)
+    floor = q / np.sqrt(12.0 * fs)
+    N = np.asarray(noise.params.N, np.float64)
+    for c in range(x.shape[1]):
+        if not (np.isfinite(N[c]) and N[c] > 0):
+            return f"{s} axis {axes[c]}: white noise density {N[c]:.3g} could not be measured on this stretch"
+        sd = float(np.std(x[:, c]))
+        if N[c] * np.sqrt(fs) > 3.0 * sd:
+            return (f"{s} axis {axes[c]}: white noise density {N[c]:.3g} {unit}/sqrt(Hz) implies a sample spread of "
+                    f"{N[c] * np.sqrt(fs):.3g} {unit} at {fs:g} Hz, over 3 x the stretch's own {sd:.3g}: the fit does not "
+                    "describe these samples (a wrong sample rate?)")
+        if N[c] < floor[c]:
+            return (f"{s} axis {axes[c]}: white noise density {N[c]:.3g} {unit}/sqrt(Hz) is below the quantisation floor "
+                    f"{floor[c]:.3g} (resolution {q[c]:.3g} {unit} at {fs:g} Hz): the output barely changes, so its noise "
+                    "is not resolved (a stuck sensor, or the wrong datasheet scale?)")
+    return None
+
+
 def noise_report(
     rec: Recording,
     sensors: tuple[str, ...] = ("acc", "gyr"),
@@ -293,7 +348,12 @@ def noise_report(
         level: confidence level of the intervals.
     """
     for s in sensors:
-        sensor_si(rec, s)  # refuse missing scale metadata before any work
+        x = sensor_si(rec, s)[0]  # refuse missing scale metadata before any work
+        ptp = np.ptp(x, axis=0)
+        if ptp.min() == 0.0:  # a stuck sensor: refused before the static detector calls it moving
+            c = int(np.argmin(ptp))
+            raise RecordingError(f"{s} axis {'xyz'[c]} never changes over the recording (every sample {x[0, c]:.6g} "
+                                 f"{SI_UNITS[s]['signal']}): a stuck sensor or a constant file; its noise cannot be measured")
     t = np.asarray(rec.t, np.float64)
     if start is None and end is None:
         a, b, how = static_stretch(rec, sensors)
@@ -319,7 +379,16 @@ def noise_report(
     spread = float(np.max(np.abs(dts - dt)) / dt)
     if spread > 0.1:
         warnings.append(f"time steps vary by up to {100 * spread:.0f} % of the median; the Allan deviation assumes even spacing")
+    for s in sensors:  # a stuck axis first: its Allan deviation is 0
+        if np.ptp(data[s], axis=0).min() == 0.0:
+            c = int(np.argmin(np.ptp(data[s], axis=0)))
+            raise RecordingError(f"{s} axis {'xyz'[c]} never changes over the {t[b - 1] - t[a]:.1f} s stretch (every sample "
+                                 f"{data[s][0, c]:.6g} {SI_UNITS[s]['signal']}): a stuck sensor or a constant file; its noise cannot be measured")
     res = {s: sensor_noise(data[s], fs, taus_per_decade, level) for s in sensors}
+    for s in sensors:
+        why = implausible_noise(s, data[s], res[s], fs, SI_UNITS[s]["signal"])
+        if why:
+            raise RecordingError(why)
     dur = float(t[b - 1] - t[a])
     for s, r in res.items():
         if not np.all(np.isfinite(r.params.K)):
@@ -490,7 +559,7 @@ def allan_figure(rep: NoiseReport, title: str = ""):
         ax.set_ylabel(f"Allan deviation [{SI_UNITS[s]['signal']}]")
         ax.set_title(f"{s}: N (--), 0.664 B (:), K (-.; dotted = upper bound)", fontsize=9)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=8, loc="lower left")  # loc="best" warns (a stderr line) when placing it is slow
     if title:
         fig.suptitle(title, fontsize=10)
     return fig

@@ -178,15 +178,43 @@ def _messages(reader: Any, bag: str, topic: str, flag: str) -> Any:
         raise ReaderError(f"{bag}: {flag} {topic!r}: cannot read its messages ({_one_line(e)})") from None
 
 
+CLOCK_STEP_S = 1.0  # header stamps may drift from the receive times by transport delay, not by more
+
+
+def _check_clocks(header_ns: list[int], recv_ns: list[int], where: str) -> None:
+    """Refuse header stamps whose offset from the bag's receive times changes by more than
+    ``max(CLOCK_STEP_S, half the receive span)``: a step of the header clock (a one-hour step over a
+    10 s bag was kept)."""
+    if len(header_ns) < 2:
+        return
+    h, r = np.asarray(header_ns, np.int64), np.asarray(recv_ns, np.int64)
+    off = (h - h[0]) - (r - r[0])  # int64 ns, no float rounding of 61-bit stamps
+    spread = float(off.max() - off.min()) / 1e9
+    span = float(r.max() - r.min()) / 1e9
+    if spread > max(CLOCK_STEP_S, 0.5 * span):
+        k = int(np.argmax(np.abs(np.diff(off)))) + 1
+        raise ReaderError(f"{where}: the header stamps drift from the bag's receive times by {spread:.4g} s over a "
+                          f"{span:.4g} s recording (a jump of {float(off[k] - off[k - 1]) / 1e9:.4g} s at message {k}): "
+                          "a header clock step; try --time receive")
+
+
 def _imu(reader: Any, bag: str, topic: str, time: str) -> dict[str, Any]:
     ns, rows, no_acc, no_gyr, frames = [], [], True, True, set()
+    hdr, rcv = [], []
     for t_recv, m in _messages(reader, bag, topic, "--imu-topic"):
-        ns.append(_stamp_ns(m.header) if time == "header" else t_recv)
+        hdr.append(_stamp_ns(m.header))
+        rcv.append(t_recv)
+        ns.append(hdr[-1] if time == "header" else t_recv)
         rows.append(_vec(m.linear_acceleration) + _vec(m.angular_velocity))
         no_acc = no_acc and float(m.linear_acceleration_covariance[0]) == -1.0
         no_gyr = no_gyr and float(m.angular_velocity_covariance[0]) == -1.0
         frames.add(m.header.frame_id)
     where = f"{bag}: --imu-topic {topic!r}"
+    if len(frames) > 1:
+        raise ReaderError(f"{where}: the messages name {len(frames)} frames {sorted(frames)[:_LIST_AT_MOST]} (two IMUs on one "
+                          "topic?); jaxcal reads one IMU per topic: split the topic by header.frame_id first")
+    if time == "header":
+        _check_clocks(hdr, rcv, where)
     if no_acc and no_gyr:
         raise ReaderError(f"{where}: every message marks both linear_acceleration and angular_velocity as "
                           "absent (covariance[0] = -1)")
@@ -217,12 +245,15 @@ def _pose(reader: Any, bag: str, topic: str, msgtype: str, pose_frame: str | Non
         raise ReaderError(f"{where}: a tf topic holds many frames; name the body with --pose-frame CHILD_FRAME_ID")
     want = None if pose_frame is None else _frame(pose_frame)
     ns, rows, parents, children, seen = [], [], set(), set(), set()
+    hdr, rcv = [], []
     for t_recv, m in _messages(reader, bag, topic, "--pose-topic"):
         for header, parent, child, row in _pose_rows(msgtype, m):
             seen.add(_frame(child))
             if want is not None and _frame(child) != want:
                 continue
-            ns.append(_stamp_ns(header) if time == "header" else t_recv)
+            hdr.append(_stamp_ns(header))
+            rcv.append(t_recv)
+            ns.append(hdr[-1] if time == "header" else t_recv)
             rows.append(row)
             parents.add(parent)
             children.add(child)
@@ -231,6 +262,8 @@ def _pose(reader: Any, bag: str, topic: str, msgtype: str, pose_frame: str | Non
     if want is None and len(children) > 1:
         raise ReaderError(f"{where}: the messages name several child frames {sorted(children)[:_LIST_AT_MOST]}; "
                           "pick one with --pose-frame")
+    if time == "header":
+        _check_clocks(hdr, rcv, where)
     stamps, vals = _sorted_unique(ns, np.asarray(rows, dtype=np.float64).reshape(-1, 7), where, time)
     if stamps.size < 2:
         raise ReaderError(f"{where}: {stamps.size} distinct pose time(s); need at least 2")
@@ -354,6 +387,11 @@ def read_rosbag(
         rec["meta_bag_files"] = np.int64(len(paths))
         if pose_type is not None:
             tg, pos, q, meta = _pose(reader, bag, pose_topic, pose_type, pose_frame, time, int(rec["t0_ns"]))
+            t_imu = rec["t"]
+            if tg[-1] < t_imu[0] or tg[0] > t_imu[-1]:
+                raise ReaderError(f"{bag}: --pose-topic {pose_topic!r}: the pose track ({tg[0]:.4g} to {tg[-1]:.4g} s) never "
+                                  f"overlaps the IMU (0 to {t_imu[-1]:.4g} s) on the {time} clock; the two topics' clocks "
+                                  f"differ{' (try --time receive)' if time == 'header' else ''}")
             attach_pose(rec, tg, pos, q, max_gap, f"{bag}: --pose-topic {pose_topic!r}")
             rec.update(meta)
         elif pose_frame is not None:

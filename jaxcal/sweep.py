@@ -54,6 +54,8 @@ import itertools
 import json
 import math
 import os
+import shutil
+import tempfile
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -79,6 +81,9 @@ from jaxcal.simulate.dataset2 import Dataset2Config, dataset2
 from jaxcal.train import TrainConfig
 
 __all__ = [
+    "MAX_RUNS",
+    "failed_runs",
+    "n_runs",
     "CHECKPOINT",
     "OFFLINE_DATASET_KEY",
     "TARGETS",
@@ -217,6 +222,21 @@ def _fail(msg: str) -> None:
     raise ValueError(msg)
 
 
+MAX_RUNS = 100_000  # configurations x seeds of one sweep; checked on the spec, before any expansion
+_POSITIVE_DATASET = ("fs", "w_max", "test_gyr_amplitude", "acc_lsb_per_g", "gyr_lsb_per_rads")
+
+
+def n_runs(spec: SweepSpec) -> int:
+    """How many runs a spec asks for (grid points x random samples x seeds), counted without
+    expanding anything (exact Python integers: a 40^6 grid is 4.1e9)."""
+    n = 1
+    for v in spec.grid.values():
+        n *= len(v) if isinstance(v, (list, tuple)) else 1
+    if spec.random:
+        n *= max(int(spec.n_random), 0)
+    return n * max(len(spec.seeds), 1)
+
+
 def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
@@ -238,6 +258,9 @@ def _check_value(target: Target, name: str, v: Any, where: str) -> None:
             return
         if not _is_number(v) or (isinstance(default, int) and (int(v) != v or v < 1)):
             _fail(f"{where}: {name} = {v!r} is not a valid {type(default).__name__}")
+        field = name[len(_DATASET_PREFIX):]
+        if v < 0 or (field in _POSITIVE_DATASET and v <= 0):
+            _fail(f"{where}: {name} = {v!r} must be {'> 0' if field in _POSITIVE_DATASET else '>= 0'}")
         return
     if name in target.bools:
         if not isinstance(v, bool):
@@ -312,6 +335,9 @@ def check_spec(spec: SweepSpec) -> Target:
         _fail("sweep spec seeds: repeated seed")
     if not isinstance(spec.batch_size, int) or spec.batch_size < 0:
         _fail(f"sweep spec batch_size: expected an integer >= 0, got {spec.batch_size!r}")
+    if (n := n_runs(spec)) > MAX_RUNS:
+        _fail(f"sweep spec: {n:.3g} runs (grid x random n x seeds), more than the {MAX_RUNS} one sweep may hold; "
+              "sweep a coarser grid or fewer random samples")
     swept = (*spec.grid, *spec.random)
     if spec.heatmap and (len(spec.heatmap) != 2 or any(h not in swept for h in spec.heatmap)):
         _fail(f"sweep spec heatmap: expected two of the swept names {list(swept)}, got {list(spec.heatmap)!r}")
@@ -356,6 +382,9 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
         _fail(f"sweep spec dataset: target {target} uses a fixed dataset and has no dataset settings")
     if ds0 is not None and (bad := sorted(set(ds) - set(ds0._fields))):
         _fail(f"sweep spec dataset: unknown field(s) {', '.join(map(repr, bad))}")
+    heatmap = d.get("heatmap", [])
+    if not isinstance(heatmap, list) or not all(isinstance(h, str) for h in heatmap):
+        _fail(f"sweep spec heatmap: expected a list of two swept names, got {heatmap!r}")
     seeds = d.get("seeds", [0])
     if not isinstance(seeds, list):
         _fail("sweep spec seeds: expected a list of integers")
@@ -372,7 +401,7 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
         fixed=dict(d.get("fixed", {})),
         seeds=tuple(seeds),
         dataset=None if ds0 is None else ds0._replace(**ds),
-        heatmap=tuple(d.get("heatmap", ())),
+        heatmap=tuple(heatmap),
         batch_size=d.get("batch_size", 0),
     )
     check_spec(spec)
@@ -934,6 +963,17 @@ def run_sweep(
 # ----------------------------------------------------------------------------- output
 
 
+def failed_runs(result: SweepResult) -> int:
+    """Runs whose every metric is non-finite (diverged, or a configuration that cannot run)."""
+    keys = [k for k, _ in TARGETS[result.spec.target].metrics]
+
+    def bad(r: dict) -> bool:
+        vals = [r.get(k) for k in keys if isinstance(r.get(k), (int, float))]
+        return bool(vals) and not any(math.isfinite(v) for v in vals)
+
+    return sum(bad(r) for r in result.rows)
+
+
 def _seed_means(result: SweepResult) -> list[dict[str, Any]]:
     """Rows averaged over seeds (one per configuration), in first-appearance order."""
     by: dict[tuple, list[dict]] = {}
@@ -1031,7 +1071,9 @@ def _write_heatmap(path: Path, result: SweepResult, axes: tuple[str, str]) -> No
 
 
 def write_sweep(out_dir: str | os.PathLike, result: SweepResult) -> list[Path]:
-    """Write ``sweep.json``, ``sweep.md`` and (two swept names or more) ``sweep_heatmap.png``, each atomically.
+    """Write ``sweep.json``, ``sweep.md`` and (two swept names or more) ``sweep_heatmap.png``: all three
+    finished in a temporary folder inside ``out_dir`` first, then moved into place (an earlier heatmap
+    removed when this sweep has none), so an interruption leaves the earlier results whole.
 
     Args:
         out_dir: the directory (created if needed).
@@ -1042,13 +1084,20 @@ def write_sweep(out_dir: str | os.PathLike, result: SweepResult) -> list[Path]:
     """
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)
-    _write_json(d / "sweep.json", {"spec": spec_to_dict(result.spec), "names": list(result.names),
-                                   "rows": result.rows, "timing": result.timing})
-    with atomic_output(d / "sweep.md") as tmp:
-        tmp.write_text(_markdown(result))
-    written = [d / "sweep.json", d / "sweep.md"]
-    axes = _heatmap_axes(result)
-    if axes is not None:
-        _write_heatmap(d / "sweep_heatmap.png", result, axes)
-        written.append(d / "sweep_heatmap.png")
-    return written
+    tmp = Path(tempfile.mkdtemp(prefix=".sweep.", suffix=".partial", dir=d))
+    try:  # every file finished beside the folder first: an interruption leaves the earlier results whole
+        names = ["sweep.md", "sweep.json"]
+        _write_json(tmp / "sweep.json", {"spec": spec_to_dict(result.spec), "names": list(result.names),
+                                         "rows": result.rows, "timing": result.timing})
+        (tmp / "sweep.md").write_text(_markdown(result))
+        axes = _heatmap_axes(result)
+        if axes is not None:
+            _write_heatmap(tmp / "sweep_heatmap.png", result, axes)
+            names.insert(0, "sweep_heatmap.png")
+        else:  # an earlier sweep's heatmap would not describe these results
+            (d / "sweep_heatmap.png").unlink(missing_ok=True)
+        for n in names:  # sweep.json, the record, last
+            os.replace(tmp / n, d / n)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return [d / n for n in ("sweep.json", "sweep.md", "sweep_heatmap.png") if n in names]

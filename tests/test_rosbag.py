@@ -529,3 +529,45 @@ def test_ros2_bags_without_message_definitions(tmp_path, capsys):
     np.testing.assert_array_equal(rec.acc, tr.acc / G0)
     np.testing.assert_array_equal(rec.gyr, tr.gyr)
     np.testing.assert_array_equal(rec.t, (tr.ns - tr.ns[0]) / 1e9)
+
+
+# ----------------------------------------------------------------------------- plausibility (issue 27)
+
+
+def test_two_frames_on_one_imu_topic_refused(tmp_path, capsys):
+    """Two IMUs on one topic became one 400 Hz recording."""
+    tr = Truth(5)
+    ts = _typestore("ros1")
+    msgs = tr.imu_msgs(ts)
+    for r, m in msgs[1::2]:
+        m.header.frame_id = "imu_b"
+    bag = write_bag(tmp_path / "b", "ros1", {"/imu0": ("sensor_msgs/msg/Imu", msgs)})
+    refused(capsys, ["import", "rosbag", bag, "--imu-topic", "/imu0", "--out", tmp_path / "x.npz"],
+            tmp_path / "x.npz", "2 frames", "imu_b", "imu_link", "two IMUs on one topic")
+
+
+def test_header_clock_step_refused_receive_time_accepted(tmp_path, capsys):
+    """A one-hour header-clock step was kept though the receive times span the bag evenly."""
+    tr = Truth(6)
+    ts = _typestore("mcap")
+    msgs = [(int(r), imu_msg(ts, int(s) + (3600 * 10**9 if k >= N // 2 else 0), a, g))
+            for k, (r, s, a, g) in enumerate(zip(tr.recv, tr.ns, tr.acc, tr.gyr))]
+    bag = write_bag(tmp_path / "b", "mcap", {"/imu0": ("sensor_msgs/msg/Imu", msgs)})
+    refused(capsys, ["import", "rosbag", bag, "--imu-topic", "/imu0", "--out", tmp_path / "x.npz"],
+            tmp_path / "x.npz", "header clock step", "3600 s", f"message {N // 2}", "--time receive")
+    code, err = run(capsys, "import", "rosbag", bag, "--imu-topic", "/imu0", "--time", "receive", "--out", tmp_path / "r.npz")
+    assert code == 0, err
+    np.testing.assert_array_equal(load_recording(tmp_path / "r.npz").t, (tr.recv - tr.recv[0]) / 1e9)
+
+
+def test_pose_topic_that_never_overlaps_the_imu_refused(tmp_path, capsys):
+    """A pose track an hour after the IMU was written without a word."""
+    tr = Truth(7)
+    ts = _typestore("sqlite3")
+    late = 3600 * 10**9
+    poses = [(int(r) + late, pose_msg(ts, "geometry_msgs/msg/PoseStamped", int(s) + late, p, np.r_[q[1:], q[0]]))
+             for (r, _), s, p, q in zip(tr.pose_msgs(ts, "geometry_msgs/msg/PoseStamped"), tr.pose_ns, tr.pos, tr.q_wxyz)]
+    bag = write_bag(tmp_path / "b", "sqlite3", {"/imu0": ("sensor_msgs/msg/Imu", tr.imu_msgs(ts)),
+                                                 "/mocap": ("geometry_msgs/msg/PoseStamped", poses)})
+    refused(capsys, ["import", "rosbag", bag, "--imu-topic", "/imu0", "--pose-topic", "/mocap", "--out", tmp_path / "x.npz"],
+            tmp_path / "x.npz", "never overlaps the IMU", "/mocap")

@@ -12,7 +12,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from jaxcal import methods
-from jaxcal.cli.core import Command, UsageError, _check_out_file, _count, _progress, _real, _seed, register_command
+from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _progress, _real, _seed, register_command
 from jaxcal.constants import GYR_RANGE_DEGS, SENSORS
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.methods.summary import contradiction, describe, summary_lines
@@ -257,7 +257,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if why is not None and not args.force:
         raise ModelError(f"{args.recording}: {args.method}: not written: {why} (--force writes it anyway)")
     if why is not None:
-        print(f"jaxcal: warning: {args.method}: {why}; written because of --force", file=sys.stderr)
+        print(f"{PROG}: warning: {args.method}: {why}; written because of --force", file=sys.stderr)
         desc = {**desc, "contradiction": why}
     model = CalibrationModel(model.method, model.sensors, model.state, {**model.meta, **desc})
     save_model(model, args.out)
@@ -278,6 +278,9 @@ def _add_apply(p: argparse.ArgumentParser) -> None:
         "--out", required=True, metavar="OUT.npz", help="output: t, and acc_cal (g) and/or gyr_cal (rad/s)"
     )
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument("--allow-extrapolation", action="store_true",
+                   help="apply even where the recording lies outside the model's fitted range (a cubic model's input "
+                        "bounds, a diagnosed model's temperature range or time offset): warn on stderr instead of refusing")
 
 
 def _run_apply(args: argparse.Namespace) -> int:
@@ -286,6 +289,13 @@ def _run_apply(args: argparse.Namespace) -> int:
     _check_out_file(args.out, [args.model, args.recording])
     model = load_model(args.model)
     rec = load_recording(args.recording)
+    from jaxcal.plausible import apply_range_problems
+
+    problems = apply_range_problems(model.method, model.state, model.meta, rec)
+    if problems and not args.allow_extrapolation:
+        raise UsageError(f"{args.model} on {args.recording}: {problems[0]} (--allow-extrapolation applies it anyway)")
+    for why in problems:
+        print(f"{PROG}: warning: {why}", file=sys.stderr)
     try:
         out = model.apply(rec)
     except ModelError as e:  # the model does not suit the recording (or is malformed): say which files

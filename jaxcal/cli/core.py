@@ -193,7 +193,8 @@ def _output_dir(path: str) -> Iterator[Path]:
     """A temporary directory to write ``--out DIR`` into, published only on success.
 
     On success its files move into ``DIR`` (created with its parents if needed; in an existing
-    ``DIR`` same-named files are replaced, others kept). On any failure, Ctrl-C included, the
+    ``DIR`` same-named files are replaced, others kept); a new ``DIR`` gets the mode ``mkdir`` gives
+    (0777 less the umask), not ``mkdtemp``'s 0700. On any failure, Ctrl-C included, the
     temporary directory is removed: a refused or interrupted run leaves no folder and no partial
     file behind, and an existing ``DIR`` is untouched.
     """
@@ -205,6 +206,7 @@ def _output_dir(path: str) -> Iterator[Path]:
         raise UsageError(f"--out {path}: cannot create directory ({base} is not a directory)")
     try:
         tmp = Path(tempfile.mkdtemp(prefix=f".{d.name}.", suffix=".partial", dir=base))
+        tmp.chmod(0o777 & ~_umask())  # mkdtemp makes it 0700; the published folder gets mkdir's usual mode
     except OSError as e:
         raise UsageError(f"--out {path}: cannot create directory ({e.strerror or e})") from None
     try:
@@ -212,6 +214,13 @@ def _output_dir(path: str) -> Iterator[Path]:
         _publish_dir(tmp, d)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and restoring it at once)."""
+    m = os.umask(0o022)
+    os.umask(m)
+    return m
 
 
 def _publish_dir(tmp: Path, d: Path) -> None:

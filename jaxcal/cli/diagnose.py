@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _output_dir, _real, register_command
-from jaxcal.recording import load_recording
+from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _output_dir, _real, _same_file, register_command
+from jaxcal.recording import Recording, load_recording
+
+if TYPE_CHECKING:  # annotations only: jaxcal.diagnose is imported on use
+    from jaxcal.diagnose.gate import GateResult
 
 __all__: list[str] = []
 
@@ -22,34 +27,83 @@ def _add_diagnose(p: argparse.ArgumentParser) -> None:
                         "for `jaxcal apply` on new recordings")
 
 
+def _check_model_out(model_out: str, out: str, recording: str) -> None:
+    """Refuse a ``--model-out`` that cannot be written, before the diagnosis: not ``.npz``, one of
+    the inputs, the ``--out`` folder itself, or in a folder that is missing (other than ``--out``)
+    or not writable."""
+    if not model_out.lower().endswith(".npz"):
+        raise UsageError(f"--model-out {model_out}: model files are .npz")
+    try:
+        _check_out_file(model_out, [recording])
+    except UsageError as e:  # its message names --out
+        raise UsageError(str(e).replace("--out", "--model-out", 1)) from None
+    m, o = Path(model_out).absolute(), Path(out).absolute()
+    if m == o or _same_file(m, o):
+        raise UsageError(f"--model-out {model_out}: is the --out folder; name a file outside it or inside it")
+    parent = m.parent
+    if parent == o:
+        return  # written after the report folder is published
+    if parent.exists() and not parent.is_dir():
+        raise UsageError(f"--model-out {model_out}: {parent} is not a folder")
+    if not parent.is_dir():
+        raise UsageError(f"--model-out {model_out}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise UsageError(f"--model-out {model_out}: folder {parent} is not writable")
+
+
+def _gate(rec: Recording, what: str) -> GateResult:
+    """The reference gate (:mod:`jaxcal.diagnose.gate`) before any fit: one line on refusal."""
+    from jaxcal.diagnose.gate import check_reference
+
+    try:
+        return check_reference(rec)
+    except ValueError as e:
+        raise UsageError(f"{what}: {e}") from None
+
+
 def _run_diagnose(args: argparse.Namespace) -> int:
     from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
+    from jaxcal.diagnose.gate import baseline_scales, report_gate
 
     if args.model_out is not None:
-        if not args.model_out.lower().endswith(".npz"):
-            raise UsageError(f"--model-out {args.model_out}: model files are .npz")
-        try:
-            _check_out_file(args.model_out, [args.recording])
-        except UsageError as e:  # its message names --out
-            raise UsageError(str(e).replace("--out", "--model-out", 1)) from None
+        _check_model_out(args.model_out, args.out, args.recording)
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a directory")
     rec = load_recording(args.recording)
+    gate = _gate(rec, args.recording)  # refuse bad input (no reference motion, too short) before any progress line
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
         try:
-            diag.prepare(rec)  # refuse bad input (no reference motion, too short) before any progress line
             print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-            rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d, keep_fit=args.model_out is not None)
-            fit = rep.pop("_fit", None)
+            rep = diag.diagnose_recording(rec, baseline=args.baseline, with_figures=True, keep_fit=True)
+            kept = rep.pop("_fit")
+            fit = kept if args.model_out is not None else None
+            figs = rep.pop("_figures", None)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
-    if fit is not None:
-        from jaxcal.methods import CalibrationModel
-        from jaxcal.methods.diagnosed import diagnosed_model_state
-        from jaxcal.model_file import save_model
+        try:
+            bad = report_gate(rep, gate, scales=baseline_scales(kept[1], args.baseline))
+            if bad:
+                raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
+            diag.write_report(d, rep, figs)
+        finally:
+            if figs:
+                import matplotlib.pyplot as plt
 
-        fitted = diagnosed_model_state(*fit, args.baseline, rec)
-        model = CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
-        save_model(model, args.model_out)
+                for f in figs.values():
+                    plt.close(f)
+        if fit is not None:
+            from jaxcal.methods import CalibrationModel
+            from jaxcal.methods.diagnosed import diagnosed_model_state
+            from jaxcal.model_file import save_model
+
+            fitted = diagnosed_model_state(*fit, args.baseline, rec)
+            model = CalibrationModel("diagnosed", fitted.sensors, fitted.state, fitted.meta)
+            if Path(args.model_out).absolute().parent != Path(args.out).absolute():
+                save_model(model, args.model_out)  # before the report is published: a failure leaves neither
+    if fit is not None:
+        if Path(args.model_out).absolute().parent == Path(args.out).absolute():
+            save_model(model, args.model_out)
         carried = "; ".join(f"{s}: {', '.join(v) or 'baseline only'}" for s, v in model.meta["effects"].items())
         print(f"{PROG}: wrote {args.model_out} (method diagnosed; {carried})", file=sys.stderr)
     names = [e.get("name", "?") + "(" + e.get("sensor", "?") + ")" for e in rep.get("effects", [])]
@@ -72,8 +126,14 @@ def _add_align(p: argparse.ArgumentParser) -> None:
 
 def _run_align(args: argparse.Namespace) -> int:
     from jaxcal.diagnose import align as al
+    from jaxcal.diagnose.gate import baseline_scales, report_gate
 
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise UsageError(f"--out {args.out}: exists and is not a directory")
     rec = load_recording(args.recording)
+    if rec.pos_ref is None or rec.quat_ref is None:
+        raise UsageError(f"{args.recording}: align needs a reference pose (pos_ref and quat_ref)")
+    gate = _gate(rec, args.recording)
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
         try:
@@ -81,6 +141,9 @@ def _run_align(args: argparse.Namespace) -> int:
             res = al.align_recording(rec, pose_sigma=args.pose_sigma)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
+        bad = report_gate(res.report, gate, res.align, scales=baseline_scales(res.results, "affine"))
+        if bad:
+            raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
         al.write_alignment(d, res)
     a = res.align
     r = "-" if a["r"] is None else "[" + ", ".join(f"{1e3 * v:.1f}" for v in a["r"]) + "] mm"

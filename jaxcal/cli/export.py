@@ -49,6 +49,7 @@ def _read_noise(path: str) -> dict:
     import yaml
 
     from jaxcal import export
+    from jaxcal.safe_yaml import load_yaml
 
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -57,7 +58,7 @@ def _read_noise(path: str) -> dict:
     if text.startswith("%YAML:"):
         text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        return export.noise_fields(yaml.safe_load(text))
+        return export.noise_fields(load_yaml(text))
     except yaml.YAMLError as e:
         raise UsageError(f"--noise {path}: not valid YAML ({str(e).strip().splitlines()[0]})") from None
     except ValueError as e:

@@ -165,6 +165,9 @@ def diagnosed_model_state(preps: Mapping[str, Any], results: Mapping[str, Any], 
             # T0 of the diagnosis: the mean temperature over its valid rows (dT = temp - T0)
             prep = preps[s]
             p["T0"] = np.asarray(float(np.mean(np.asarray(prep.temp, np.float64) - np.asarray(sd.inp.dT, np.float64))))
+            T = np.asarray(prep.temp, np.float64)[np.asarray(sd.valid, bool)]
+            if T.size:  # `jaxcal apply` refuses a recording far outside it (jaxcal.plausible)
+                meta.setdefault("temperature_range_degC", {})[s] = [float(T.min()), float(T.max())]
         state[s] = p
         meta["effects"][s] = [n for n in CARRIED if n in p]
     if "gyr" in state and "g_sensitivity" in state["gyr"] and "acc" not in state and rec is not None and rec.acc is not None:
