@@ -151,7 +151,7 @@ OPTION_FLAGS: dict[str, Flag] = {
     "sigma_acc": Flag("--sigma-acc", _real(0.0, 1.0), None, "accelerometer noise std of the filter, in g",
                       "G", show_default="measured at the rests; 1.8e-5 with seq ids"),
     "n_iter": Flag("--n-iter", _count(1, 100), None, "Gauss-Newton iterations per sequence", "N",
-                   show_default="8 between rests, 4 with seq ids"),
+                   show_default="4"),
     "forgetting": Flag("--forgetting", _real(0.0, 1.0), None, "information forgetting factor per sequence, in (0, 1]",
                        "L"),
     "rest_pad": Flag("--rest-pad", _real(0.0, 1e6), None, "seconds of each rest streamed with the motions around it "
