@@ -157,7 +157,9 @@ def test_leave_poses_out_folds_equal_separate_fits(sim):
     """A second implementation of the folds: each fold fitted alone (a Python loop over
     ``fit_prepared_jit`` with that fold's weights) and scored on what it left out. ``leave_poses_out``
     one fold after another (the CPU default) and all 5 in one vmap agree with it, up to where the
-    compiled LM loops stop (measured: acc <= 1.4e-14, gyr <= 6.0e-11 rad against errors to 1.3e-4 rad)."""
+    compiled LM loops stop (measured: acc <= 1.4e-14 in one suite run and 1.9e-11 g in another, against
+    errors to 3e-5 g: where the accelerometer LM stops depends on the compiled loop; gyr <= 6.0e-11 rad
+    against errors to 1.3e-4 rad)."""
     t, acc, gyr = sim
     det = detect_static(t, acc, k=3.0, init_duration=8.0, window=0.5, min_duration=1.0)
     data = mp.prepare(t, acc, gyr, det.intervals)
@@ -174,7 +176,7 @@ def test_leave_poses_out_folds_equal_separate_fits(sim):
             eg[tf == k] = np.asarray(mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, d))[tf == k]
     for batch in (1, 5):
         h = mp.leave_poses_out(data, config, n_folds=5, batch=batch)
-        np.testing.assert_allclose(h.acc_err, ea, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(h.acc_err, ea, rtol=0, atol=1e-10)
         np.testing.assert_allclose(h.gyr_err, np.where(np.asarray(data.seg_ok), eg, np.nan), rtol=0, atol=2e-9)
     assert mp.fold_batch(40) == (1 if jax.default_backend() == "cpu" else 40)
 
