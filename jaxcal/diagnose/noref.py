@@ -41,8 +41,8 @@ from scipy.ndimage import gaussian_filter1d
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import kinematics as K
-from jaxcal.diagnose.core import Prepared, SensorResult, diagnose_prepared, require_recording
-from jaxcal.diagnose.select import SelectConfig, SensorData
+from jaxcal.diagnose.core import Prepared, SensorResult, diagnose_sensor, require_recording
+from jaxcal.diagnose.select import SelectConfig, SensorData, candidates
 from jaxcal.recording import Recording
 from jaxcal.sensor import LinearCal
 
@@ -77,6 +77,8 @@ class NorefConfig(NamedTuple):
         fold_s: length (s) of the time segments dealt into the accelerometer's folds.
         n_blocks: number of interleaved cross-validation folds.
         multipos: start from a multi-position calibration where the rests allow it.
+        max_carry_s: longest motion between two rests across which gravity is carried from rest
+            to rest (:func:`carried_gravity`); longer ones use the low-pass.
     """
 
     gravity_sigma_s: float = 1.0
@@ -87,6 +89,7 @@ class NorefConfig(NamedTuple):
     fold_s: float = 2.0
     n_blocks: int = 8
     multipos: bool = True
+    max_carry_s: float = 30.0
 
 
 class SelfReference(NamedTuple):
@@ -223,18 +226,34 @@ def dead_reckon(w: np.ndarray, dt: float) -> np.ndarray:
     return Rotation.from_quat(q).as_matrix()
 
 
-def carried_gravity(R: np.ndarray, f: np.ndarray, dt: float, sigma_s: float) -> np.ndarray:
+def carried_gravity(R: np.ndarray, f: np.ndarray, dt: float, sigma_s: float, rest: np.ndarray | None = None,
+                    max_carry_s: float = 30.0) -> np.ndarray:
     """(N, 3) the gravity direction the gyroscope carries, as specific force (g, unit norm):
-    ``R^T normalise(lowpass(R f))``, the low-pass a Gaussian of ``sigma_s`` s.
+    ``R^T normalise(g_w)`` with ``g_w`` gravity in the dead-reckoned frame. Between two rests at
+    most ``max_carry_s`` apart, ``g_w`` is each rest's mean of ``R f`` (constant over the rest)
+    and linear in time across the motion between them: the first rest's gravity carried onto the
+    second by the gyroscope, the dead-reckoning drift shared out linearly, and nothing taken from
+    the motion itself (so the motion's own effects are not absorbed). Elsewhere (no rests, long
+    motions, before the first and after the last rest) ``g_w`` is the low-pass of ``R f``, a
+    Gaussian of ``sigma_s`` s.
 
     Args:
         R: (N, 3, 3) dead-reckoned orientations (:func:`dead_reckon`).
         f: (N, 3) calibrated specific force (g).
         dt: sample interval (s).
-        sigma_s: Gaussian width (s).
+        sigma_s: Gaussian width (s) of the low-pass.
+        rest: (N,) bool rest samples (:func:`rest_mask`); None: low-pass everywhere.
+        max_carry_s: longest motion between two rests that is bridged by interpolation (s).
     """
     fw = np.einsum("nij,nj->ni", R, f)
     gw = gaussian_filter1d(fw, sigma_s / dt, axis=0, mode="nearest")
+    runs = [] if rest is None else _runs(rest)
+    for a, b in runs:
+        gw[a:b] = fw[a:b].mean(0)
+    for (a0, b0), (a1, b1) in zip(runs[:-1], runs[1:]):
+        if (a1 - b0) * dt <= max_carry_s:
+            u = (np.arange(b0, a1) - (b0 - 1)) / (a1 - (b0 - 1))
+            gw[b0:a1] = (1 - u)[:, None] * gw[b0 - 1] + u[:, None] * gw[a1]
     gw /= np.linalg.norm(gw, axis=1, keepdims=True)
     return np.einsum("nji,nj->ni", R, gw)
 
@@ -268,9 +287,9 @@ def self_reference(rec: Recording, cfg: NorefConfig = NorefConfig()) -> SelfRefe
     f = np.asarray(a.apply(np.asarray(rec.acc, np.float64)), np.float64)
     w = np.asarray(g.apply(np.asarray(rec.gyr, np.float64)), np.float64)
     rest = rest_mask(t, f, w, cfg)
-    f_ref = carried_gravity(dead_reckon(w, dt), f, dt, cfg.gravity_sigma_s)
+    f_ref = carried_gravity(dead_reckon(w, dt), f, dt, cfg.gravity_sigma_s, rest, cfg.max_carry_s)
     notes.append(f"reference-free: starting calibration from {source}; {len(_runs(rest))} rests "
-                 f"({rest.mean() * 100:.0f} % of the samples); gravity carried by the gyroscope, low-pass sigma {cfg.gravity_sigma_s:g} s")
+                 f"({rest.mean() * 100:.0f} % of the samples); gravity carried by the gyroscope from rest to rest (motions up to {cfg.max_carry_s:g} s), elsewhere a low-pass of sigma {cfg.gravity_sigma_s:g} s")
     return SelfReference(a, g, f, w, f_ref, rest, source, notes)
 
 
@@ -375,7 +394,8 @@ def carry_check(ref: SelfReference, t: np.ndarray) -> dict:
 def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = SelectConfig(),
                    noref: NorefConfig = NorefConfig()) -> tuple[Prepared, dict[str, SensorResult], SelfReference]:
     """Prepare a recording against itself (:func:`prepare_noref`) and run the reference mode's
-    selection and refits on it (:func:`jaxcal.diagnose.core.diagnose_prepared`). Returns
+    selection and refits on it (:func:`jaxcal.diagnose.core.diagnose_sensor`, one Bonferroni family
+    over both sensors; the gyroscope's noise model without a random walk). Returns
     ``(prepared, {sensor: SensorResult}, self reference)``.
 
     Args:
@@ -386,7 +406,12 @@ def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = Sel
     """
     ref = self_reference(rec, noref)
     prep = prepare_noref(rec, noref, ref)
-    res = diagnose_prepared(prep, kind, cfg)
+    n_tests = sum(len(candidates(kind, sd)) for sd in prep.sensors.values())
+    res = {}
+    for s, sd in prep.sensors.items():
+        # the gyroscope's rows are separate rests: an AR noise model without the random walk, which
+        # would take each rest's level (its bias + G f) for noise
+        res[s] = diagnose_sensor(kind, sd, cfg if s == "acc" else cfg._replace(random_walk=False), n_tests)
     if "gyr" in res:  # the rests hold no rate: only the rest-output effects are diagnosable there
         res["gyr"] = res["gyr"]._replace(warnings=[w for w in res["gyr"].warnings if "not excited" not in w])
     return prep, res, ref
