@@ -160,7 +160,7 @@ def rest_mask(t: np.ndarray, f: np.ndarray, w: np.ndarray, cfg: NorefConfig = No
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
     """``[(start, stop), ...]`` of the True runs of ``mask``."""
     d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+    return [(int(a), int(b)) for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
 
 
 def reference_calibration(rec: Recording, cfg: NorefConfig = NorefConfig()) -> tuple[LinearCal, LinearCal, str, list[str]]:
