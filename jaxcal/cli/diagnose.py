@@ -28,7 +28,7 @@ def _add_diagnose(p: argparse.ArgumentParser) -> None:
 
 def _run_diagnose(args: argparse.Namespace) -> int:
     from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
-    from jaxcal.diagnose.noref import has_reference
+    from jaxcal.diagnose.noref import check_input, has_reference
 
     if args.model_out is not None:
         if not args.model_out.lower().endswith(".npz"):
@@ -45,8 +45,8 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
         try:
-            if not noref:
-                diag.prepare(rec)  # refuse bad input (too short) before any progress line
+            # refuse bad input (too short, no reference and nothing to start without one) before any progress line
+            check_input(rec) if noref else diag.prepare(rec)
             how = "without a reference (IMU self-consistency)" if noref else "against its reference motion"
             print(f"{PROG}: diagnosing {args.recording} {how}, {args.baseline} baseline ...", file=sys.stderr)
             rep = diag.diagnose_recording(rec, baseline=args.baseline, out_dir=d, keep_fit=args.model_out is not None,

@@ -50,6 +50,7 @@ __all__ = [
     "NorefConfig",
     "SelfReference",
     "has_reference",
+    "check_input",
     "reference_calibration",
     "rest_mask",
     "dead_reckon",
@@ -189,8 +190,8 @@ def reference_calibration(rec: Recording, cfg: NorefConfig = NorefConfig()) -> t
             notes.append(f"no multi-position calibration ({err}); starting from the datasheet values / units as recorded")
     a, g = _spec_cal(rec, "acc"), _spec_cal(rec, "gyr")
     if a is None or g is None:
-        raise ValueError("diagnose without a reference needs datasheet values (acc_lsb_per_g, gyr_lsb_per_rads) "
-                         "or at least 9 rests for a multi-position calibration to read raw counts")
+        raise ValueError("no reference motion (acc_ref/gyr_ref or pos_ref+quat_ref), and diagnosing raw counts without one needs "
+                         "datasheet values (acc_lsb_per_g, gyr_lsb_per_rads) or at least 9 rests for a multi-position calibration")
     f, w = a.apply(np.asarray(rec.acc, np.float64)), g.apply(np.asarray(rec.gyr, np.float64))
     rest = rest_mask(np.asarray(rec.t, np.float64), np.asarray(f), np.asarray(w), cfg)
     if rest.any():
@@ -268,6 +269,37 @@ def interleaved_blocks(seg: np.ndarray, n_blocks: int) -> np.ndarray:
     return np.asarray(seg, int) % n_blocks
 
 
+_NO_REST = ("no reference motion (acc_ref/gyr_ref or pos_ref+quat_ref), and no rest of at least {:g} s for the "
+            "reference-free mode to start from (hold the IMU still for a few seconds)")
+
+
+def check_input(rec: Recording, cfg: NorefConfig = NorefConfig()) -> None:
+    """Refuse, cheaply and before any work, a recording the reference-free mode cannot diagnose:
+    no ``acc`` or ``gyr``, fewer than 100 samples, or (with datasheet values or physical units)
+    no rest (:func:`rest_mask`).
+
+    Args:
+        rec: the recording.
+        cfg: settings.
+
+    Raises:
+        TypeError: ``rec`` is not a :class:`~jaxcal.recording.Recording`.
+        ValueError: the reason, in one line.
+    """
+    require_recording(rec)
+    if rec.acc is None or rec.gyr is None:
+        raise ValueError("no reference motion (acc_ref/gyr_ref or pos_ref+quat_ref), and diagnosing without one needs both 'acc' and 'gyr'")
+    t = np.asarray(rec.t, np.float64)
+    if len(t) < 100:
+        raise ValueError("diagnose needs a 't' array of at least 100 samples")
+    a, g = _spec_cal(rec, "acc"), _spec_cal(rec, "gyr")
+    if a is not None and g is not None:
+        f = np.asarray(a.apply(np.asarray(rec.acc, np.float64)))
+        w = np.asarray(g.apply(np.asarray(rec.gyr, np.float64)))
+        if not rest_mask(t, f, w, cfg).any():
+            raise ValueError(_NO_REST.format(cfg.min_rest_s))
+
+
 def self_reference(rec: Recording, cfg: NorefConfig = NorefConfig()) -> SelfReference:
     """The recording's own reference (module docstring): starting calibration, rests,
     gyro-carried gravity.
@@ -276,17 +308,15 @@ def self_reference(rec: Recording, cfg: NorefConfig = NorefConfig()) -> SelfRefe
         rec: the recording (``t``, ``acc``, ``gyr``).
         cfg: settings.
     """
-    require_recording(rec)
-    if rec.acc is None or rec.gyr is None:
-        raise ValueError("diagnose without a reference needs both 'acc' and 'gyr'")
+    check_input(rec, cfg)
     t = np.asarray(rec.t, np.float64)
-    if len(t) < 100:
-        raise ValueError("diagnose needs a 't' array of at least 100 samples")
     dt = float(np.median(np.diff(t)))
     a, g, source, notes = reference_calibration(rec, cfg)
     f = np.asarray(a.apply(np.asarray(rec.acc, np.float64)), np.float64)
     w = np.asarray(g.apply(np.asarray(rec.gyr, np.float64)), np.float64)
     rest = rest_mask(t, f, w, cfg)
+    if not rest.any():
+        raise ValueError(_NO_REST.format(cfg.min_rest_s))
     f_ref = carried_gravity(dead_reckon(w, dt), f, dt, cfg.gravity_sigma_s, rest, cfg.max_carry_s)
     notes.append(f"reference-free: starting calibration from {source}; {len(_runs(rest))} rests "
                  f"({rest.mean() * 100:.0f} % of the samples); gravity carried by the gyroscope from rest to rest (motions up to {cfg.max_carry_s:g} s), elsewhere a low-pass of sigma {cfg.gravity_sigma_s:g} s")
