@@ -173,7 +173,7 @@ def run_concealment(quick: bool, seed: int = 0) -> dict:
             for _ in range(n_cov):
                 u = rng.standard_normal(size)
                 mag = rng.uniform(lo, hi)
-                v = mag * u / (np.linalg.norm(u) if size > 1 else 1.0) * (np.sign(u[0]) if size == 1 else 1.0)
+                v = mag * u / np.linalg.norm(u)  # a random direction (one component: a random sign) of size mag
                 c = _case(base, base_rep, ref, name, sensor, param, np.atleast_1d(v))
                 c["size"] = float(mag)
                 cases.append(c)
@@ -192,6 +192,10 @@ def run_concealment(quick: bool, seed: int = 0) -> dict:
         out[label] = {"base_effects": [(e["sensor"], e["name"]) for e in base_rep["effects"]], "coverage_cases": cases,
                       "detection": det, "base_promise": promise_violations(base_rep) == []}
     return out
+
+
+def _sci(v) -> str:
+    return "[" + ", ".join(f"{float(x):.2g}" for x in np.ravel(np.asarray(v, float))) + "]"
 
 
 def _fmt_ms(v: float) -> str:
@@ -242,7 +246,7 @@ def markdown(res: dict) -> str:
               "| effect | size | named | estimate - unmodified | stderr | covered | else newly named |", "|---|---|---|---|---|---|---|"]
         for x in cases:
             L.append(f"| {x['name']} | {x['size']:.4g} | {x['named']} | {np.array2string(np.asarray(x['estimate_minus_unmodified']), precision=4)} "
-                     f"(truth {np.array2string(np.asarray(x['truth']), precision=4)}) | {np.array2string(np.asarray(x['stderr']), precision=2)} | "
+                     f"(truth {np.array2string(np.asarray(x['truth']), precision=4)}) | {_sci(x['stderr'])} | "
                      f"{x['covered']} | {', '.join(x['newly_named_else']) or '-'} |")
         L += ["", "Detection against size (multiples of the unmodified report's minimum detectable size):", "",
               "| effect | x MDS | size | named | covered | else newly named |", "|---|---|---|---|---|---|"]

@@ -9,10 +9,11 @@ residual:
 * **accelerometer**: the measured specific force against the gravity direction that the
   gyroscope rotates (:func:`carried_gravity`): the calibrated gyroscope is dead-reckoned into an
   orientation ``R(t)`` (``R(t+dt) = R(t) Exp(w dt)``, CONVENTIONS.md); in that drifting world frame
-  gravity is the low-pass of ``R f`` (a Gaussian of ``gravity_sigma_s``), normalised to 1 g, and
-  rotated back, ``f_ref = R^T normalise(lowpass(R f))``. At rest this is ``|f| = 1 g``; between two
-  rests it is the gravity direction carried by the gyroscope; during a motion, whatever the motion
-  adds on top is the residual. The effects of the vocabulary act on that reference with the
+  gravity is each rest's mean of ``R f``, interpolated across the motion to the next rest (where
+  no rest brackets a motion: the low-pass of ``R f``, a Gaussian of ``gravity_sigma_s``),
+  normalised to 1 g and rotated back, ``f_ref = R^T normalise(g_w)``. At rest this is
+  ``|f| = 1 g``; between two rests it is the gravity direction carried by the gyroscope; during a
+  motion, whatever the motion adds on top is the residual. The effects of the vocabulary act on that reference with the
   gyroscope as the rate: ``lever_arm`` (``dw/dt x r + w x (w x r)``, ``r`` from the point the
   rotation leaves unaccelerated) and ``time_offset`` (``tau`` of the accelerometer relative to the
   gyroscope, positive when it lags);
@@ -29,7 +30,9 @@ that the fit did not use.
 
 What the vocabulary cannot hold is said, not forced into an effect: translational acceleration
 during motions (hand-held recordings) remains in the accelerometer's residual and is reported as a
-warning with where it lives (:func:`translation_warning`).
+warning with where it lives (:func:`translation_warning`). It is treated as noise, so where it
+correlates with the rotation it biases what the motions estimate (time offset, lever arm):
+``results/field_diagnose.md`` measures how much on BROAD.
 """
 
 from __future__ import annotations
