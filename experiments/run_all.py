@@ -34,6 +34,7 @@ EXPERIMENTS = (
     ("thesis", "experiments.online_beyond", "online_beyond", "beyond chapter 4: jaxcal online at the quantisation floor, NN, drift"),
     ("real", "experiments.real_data", "real", "public recordings: readers, multipos, peers side by side"),
     ("real", "experiments.discrepancy_benchmark", "discrepancy", "jaxcal diagnose: concealed effects, nulls, TUM-VI, rigs"),
+    ("real", "experiments.field_diagnose", "field_diagnose", "jaxcal diagnose without a reference: every real recording, BROAD's relative offset, concealment"),
     ("real", "experiments.apply_effects", "apply_effects", "diagnosed model applied to held-out data: each simulated effect removed; real rigs (BROAD 07<->21, TUM-VI halves)"),
     ("real", "experiments.field", "field", "calibration in the field: online and online-thesis on real recordings without seq ids or datasheet values, beside multipos and the factory calibrations"),
     ("real", "experiments.noise", "noise", "Allan-variance noise parameters: interval coverage, allantools, real static stretches, inflation"),

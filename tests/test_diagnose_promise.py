@@ -51,10 +51,11 @@ SIZE = {("acc", "lever_arm"): 0.01, ("acc", "scale_nonlinearity"): 2e-3, ("acc",
 
 @settings(max_examples=8, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(which=st.integers(0, len(EFFECTS) - 1), scale=st.floats(0.0, 3.0), seed=st.integers(0, 2**16),
-       rw=st.booleans(), baseline=st.sampled_from(["diag", "affine"]))
-def test_promise_holds_on_random_recordings(which, scale, seed, rw, baseline):
-    """Any effect at 0-3x a typical detectable size, white or random-walk noise, either baseline:
-    the report keeps the promise (zero size: the null case)."""
+       rw=st.booleans(), baseline=st.sampled_from(["diag", "affine"]), reference=st.sampled_from(["motion", "none"]))
+def test_promise_holds_on_random_recordings(which, scale, seed, rw, baseline, reference):
+    """Any effect at 0-3x a typical detectable size, white or random-walk noise, either baseline,
+    against the reference motion or without one (:mod:`jaxcal.diagnose.noref`, the recording's
+    own gyro-carried gravity and rests): the report keeps the promise (zero size: the null case)."""
     sensor, name = EFFECTS[which]
     if baseline == "affine" and name == "misalignment":
         name = "scale_nonlinearity"
@@ -64,5 +65,6 @@ def test_promise_holds_on_random_recordings(which, scale, seed, rw, baseline):
     v = SIZE[(sensor, EFFECTS[which][1])] * scale * v / np.linalg.norm(v)
     cfg = CFG._replace(acc_rw_g_per_sqrt_s=1e-4, gyr_rw_rads_per_sqrt_s=3e-5) if rw else CFG
     rec, _ = simulate_recording(jax.random.PRNGKey(seed), cfg, {(sensor, name): {sl.param: v if sl.shape else v[:1]}})
-    rep = diagnose_recording(rec, baseline=baseline)
+    rep = diagnose_recording(rec, baseline=baseline, reference=reference)
     assert promise_violations(rep) == []
+    assert (rep.get("reference") == "none") == (reference == "none")

@@ -19,12 +19,16 @@ __all__: list[str] = []
 
 
 def _add_diagnose(p: argparse.ArgumentParser) -> None:
-    p.add_argument("recording", metavar="RECORDING", help="recording with reference motion (acc_ref/gyr_ref or pos_ref+quat_ref)")
+    p.add_argument("recording", metavar="RECORDING",
+                   help="recording, with reference motion (acc_ref/gyr_ref or pos_ref+quat_ref) or without one")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory: report.json, report.md, figures")
     p.add_argument("--baseline", choices=("diag", "affine"), default="diag", help="baseline sensor model (default diag)")
     p.add_argument("--model-out", metavar="MODEL.npz", default=None,
                    help="also write a model file (method 'diagnosed') with the baseline and the named effects, "
-                        "for `jaxcal apply` on new recordings")
+                        "for `jaxcal apply` on new recordings (reference mode only)")
+    p.add_argument("--reference", choices=("auto", "none"), default="auto",
+                   help="auto (default): against the reference motion when the recording has one, otherwise from the "
+                        "IMU's self-consistency (gravity carried by the gyroscope, rests); none: ignore any reference")
 
 
 def _check_model_out(model_out: str, out: str, recording: str) -> None:
@@ -64,25 +68,41 @@ def _gate(rec: Recording, what: str) -> GateResult:
 def _run_diagnose(args: argparse.Namespace) -> int:
     from jaxcal import diagnose as diag  # imported on use: it adds about a second to every command
     from jaxcal.diagnose.gate import baseline_scales, report_gate
+    from jaxcal.diagnose.noref import check_input, has_reference
 
     if args.model_out is not None:
         _check_model_out(args.model_out, args.out, args.recording)
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise UsageError(f"--out {args.out}: exists and is not a directory")
     rec = load_recording(args.recording)
-    gate = _gate(rec, args.recording)  # refuse bad input (no reference motion, too short) before any progress line
+    noref = args.reference == "none" or not has_reference(rec)
+    if noref and args.model_out is not None:
+        raise UsageError(f"{args.recording}: --model-out needs a reference motion (a diagnosed model of the reference-free "
+                         "mode is not written yet)")
+    # refuse bad input (too short, a reference that does not explain the sensor, no rest to start from without
+    # one) before any progress line
+    if noref:
+        try:
+            check_input(rec)
+        except ValueError as e:
+            raise UsageError(f"{args.recording}: {e}") from None
+        gate = None
+    else:
+        gate = _gate(rec, args.recording)
     t0 = time.perf_counter()
     with _output_dir(args.out) as d:
         try:
-            print(f"{PROG}: diagnosing {args.recording} against the {args.baseline} baseline ...", file=sys.stderr)
-            rep = diag.diagnose_recording(rec, baseline=args.baseline, with_figures=True, keep_fit=True)
+            how = "without a reference (IMU self-consistency)" if noref else "against its reference motion"
+            print(f"{PROG}: diagnosing {args.recording} {how}, {args.baseline} baseline ...", file=sys.stderr)
+            rep = diag.diagnose_recording(rec, baseline=args.baseline, with_figures=True, keep_fit=True,
+                                          reference="none" if noref else "motion")
             kept = rep.pop("_fit")
             fit = kept if args.model_out is not None else None
             figs = rep.pop("_figures", None)
         except ValueError as e:  # documented: bad input
             raise UsageError(f"{args.recording}: {e}") from None
         try:
-            bad = report_gate(rep, gate, scales=baseline_scales(kept[1], args.baseline))
+            bad = [] if gate is None else report_gate(rep, gate, scales=baseline_scales(kept[1], args.baseline))
             if bad:
                 raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
             diag.write_report(d, rep, figs)
@@ -157,7 +177,8 @@ register_command(
         "find the effects a sensor model leaves out (report.json)",
         _add_diagnose,
         _run_diagnose,
-        "Fit the baseline sensor model to RECORDING against its reference motion, test the effects of "
+        "Fit the baseline sensor model to RECORDING against its reference motion (or, with none, against the "
+        "IMU itself: the gravity its gyroscope carries and its rests), test the effects of "
         "the discrepancy vocabulary (CONVENTIONS.md) and write DIR/report.json, report.md and figures; with "
         "--model-out, also a model file (method 'diagnosed': the baseline and the named effects) that "
         "`jaxcal apply` inverts on new recordings.",

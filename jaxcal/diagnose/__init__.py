@@ -12,6 +12,10 @@ Pipeline (one sensor at a time, CONVENTIONS.md "Discrepancy vocabulary"):
    excitation warnings.
 4. :mod:`~jaxcal.diagnose.refit`: joint optimistix refit of baseline + named effects, with
    standard errors; :mod:`~jaxcal.diagnose.report`: ``report.json`` dict, ``report.md``, figures.
+
+Without a reference motion, :mod:`~jaxcal.diagnose.noref` chooses the residual instead (the
+accelerometer against the gravity the gyroscope carries, the gyroscope at rest) and steps 2-4 run
+unchanged (``"reference": "none"`` in the report).
 """
 
 from __future__ import annotations
@@ -20,11 +24,12 @@ import time
 from collections.abc import Mapping
 
 from jaxcal.diagnose.core import diagnose_banded, diagnose_prepared, prepare
-from jaxcal.diagnose.report import build_report_banded, figures_banded, report_markdown, write_report
+from jaxcal.diagnose.noref import NorefConfig, carry_check, diagnose_noref, has_reference, translation_warning
+from jaxcal.diagnose.report import build_report, build_report_banded, figures, figures_banded, report_markdown, write_report
 from jaxcal.diagnose.select import SelectConfig
 from jaxcal.recording import Recording
 
-__all__ = ["diagnose_recording", "diagnose_banded", "diagnose_prepared", "SelectConfig", "prepare", "report_markdown", "write_report"]
+__all__ = ["diagnose_recording", "noref_report", "NorefConfig", "diagnose_banded", "diagnose_prepared", "SelectConfig", "prepare", "report_markdown", "write_report"]
 
 
 def diagnose_recording(
@@ -36,6 +41,8 @@ def diagnose_recording(
     with_figures: bool | None = None,
     force: Mapping[str, tuple[str, ...]] | None = None,
     keep_fit: bool = False,
+    reference: str = "auto",
+    noref: NorefConfig = NorefConfig(),
 ) -> dict:
     """Diagnose a recording against the baseline sensor model; returns the ``report.json`` dict.
 
@@ -56,7 +63,11 @@ def diagnose_recording(
         keep_fit: also return the diagnosis itself, ``(preps, results)`` of
             :func:`diagnose_banded`, under the report's ``"_fit"`` key (``jaxcal diagnose
             --model-out`` turns it into a ``diagnosed`` model with
-            :func:`jaxcal.methods.diagnosed.diagnosed_model_state`).
+            :func:`jaxcal.methods.diagnosed.diagnosed_model_state`); reference mode only.
+        reference: ``"auto"`` (default): against the reference motion when the recording has one,
+            otherwise against itself (:mod:`jaxcal.diagnose.noref`); ``"motion"``: require one;
+            ``"none"``: ignore any reference and diagnose from the IMU's self-consistency.
+        noref: settings of the reference-free mode.
 
     Raises:
         TypeError: ``rec`` is not a :class:`~jaxcal.recording.Recording`.
@@ -64,11 +75,21 @@ def diagnose_recording(
     """
     if baseline not in ("diag", "affine"):
         raise ValueError(f"unknown baseline {baseline!r} (expected diag or affine)")
+    if reference not in ("auto", "motion", "none"):
+        raise ValueError(f"unknown reference {reference!r} (expected auto, motion or none)")
     t0 = time.perf_counter()
-    preps, results = diagnose_banded(rec, baseline, config, force, pose_sigma)
-    rep = build_report_banded(preps, results, baseline, time.perf_counter() - t0)
     build_figs = (out_dir is not None) if with_figures is None else with_figures
-    figs = figures_banded(preps, results) if build_figs else None
+    if reference == "none" or (reference == "auto" and not has_reference(rec)):
+        if force:
+            raise ValueError("force is a reference-mode option (jaxcal align)")
+        prep, results, ref = diagnose_noref(rec, baseline, config, noref)
+        rep = noref_report(prep, results, ref, baseline, time.perf_counter() - t0, noref)
+        figs = figures(prep, results) if build_figs else None
+        preps = {s: prep for s in results}
+    else:
+        preps, results = diagnose_banded(rec, baseline, config, force, pose_sigma)
+        rep = build_report_banded(preps, results, baseline, time.perf_counter() - t0)
+        figs = figures_banded(preps, results) if build_figs else None
     if out_dir is not None:
         write_report(out_dir, rep, figs)
         if figs:
@@ -80,4 +101,39 @@ def diagnose_recording(
         rep["_figures"] = figs
     if keep_fit:
         rep["_fit"] = (preps, results)
+    return rep
+
+
+def noref_report(prep, results: dict, ref, kind: str, runtime_s: float, noref: NorefConfig = NorefConfig()) -> dict:
+    """The ``report.json`` dict of a reference-free diagnosis (:func:`jaxcal.diagnose.noref.diagnose_noref`):
+    :func:`~jaxcal.diagnose.report.build_report` plus the optional fields ``"reference": "none"``
+    and ``"self_reference"`` (starting calibration, rests, gravity carried between rests), and the
+    translational-acceleration warning where the accelerometer's motion residual asks for one.
+
+    Args:
+        prep: the prepared recording (:func:`jaxcal.diagnose.noref.prepare_noref`).
+        results: ``{sensor: SensorResult}``.
+        ref: the :class:`~jaxcal.diagnose.noref.SelfReference`.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        runtime_s: wall time to record (s).
+        noref: the settings used.
+    """
+    import numpy as np
+
+    rep = build_report(prep, results, kind, runtime_s)
+    rep["reference"] = "none"
+    carry = carry_check(ref, prep.t)
+    rep["self_reference"] = {
+        "calibration_from": ref.source, "n_rests": int(np.count_nonzero(np.diff(np.concatenate([[0], ref.rest.astype(int)])) == 1)),
+        "rest_fraction": float(ref.rest.mean()), "gravity_sigma_s": noref.gravity_sigma_s, "fold_s": noref.fold_s,
+        "n_folds": noref.n_blocks, "carried_gravity_between_rests_deg": carry,
+        "acc_cal": {"A": np.asarray(ref.acc_cal.A).tolist(), "b": np.asarray(ref.acc_cal.b).tolist()},
+        "gyr_cal": {"A": np.asarray(ref.gyr_cal.A).tolist(), "b": np.asarray(ref.gyr_cal.b).tolist()},
+        "residual": "acc: measured specific force - gyro-carried gravity (1 g); gyr: output at rest - 0",
+    }
+    if "acc" in results:
+        w = translation_warning(prep, results["acc"], ref.rest)
+        if w is not None:
+            rep["warnings"].append(w)
+            rep["self_reference"]["translation"] = True
     return rep

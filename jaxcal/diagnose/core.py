@@ -495,7 +495,7 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         sol = np.linalg.lstsq(a_, z[rows].reshape(-1), rcond=None)[0]
         r_full = z - x[:, :, cs] @ sol
         profs = [reml_profile(r_full[:, i], rows, X=x[:, i, cs]) for i in range(3)]
-        lams = choose_lambda(profs, pooled=cfg.rw_pooled, slack=cfg.rw_slack)
+        lams = choose_lambda(profs, pooled=cfg.rw_pooled, slack=cfg.rw_slack) if cfg.random_walk else [0.0] * 3
         return [fit_ar(r_full[:, i], rows, cfg.max_ar_order, lam=lams[i]) for i in range(3)]
 
     ars_fixed = noise_model(fit_rows)

@@ -100,6 +100,8 @@ class SelectConfig(NamedTuple):
         max_passes: noise-model / selection iterations.
         rw_pooled: one random-walk level per sensor (its axes share it).
         rw_slack: profile log-likelihood slack of that level (1.92: upper end of a ~95 % interval).
+        random_walk: allow the random-walk stage in the noise model; off for rows that are separate
+            rests (a walk across the gaps between rests would take each rest's level for noise).
     """
 
     alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
@@ -110,6 +112,7 @@ class SelectConfig(NamedTuple):
     max_passes: int = 3
     rw_pooled: bool = True  # one random-walk level per sensor (axes share it)
     rw_slack: float = 1.92  # upper end of the ~95 % profile interval of that level (conservative)
+    random_walk: bool = True  # False: AR noise model only (rows that are separate rests)
 
 
 # ----------------------------------------------------------------------------- linearisation

@@ -52,6 +52,8 @@ __all__ = [
     "conceal_drift",
     "conceal_gsens",
     "conceal_lever_arm",
+    "conceal_lever_arm_gyro",
+    "conceal_gsens_cal",
     "conceal_misalignment",
     "conceal_shift",
     "decimate_reference",
@@ -600,6 +602,51 @@ def conceal_gsens(rec: Recording, G: np.ndarray) -> Recording:
         G: (3, 3) or (9,) g-sensitivity ((rad/s)/g).
     """
     return rec.replace(gyr=rec.gyr + rec.acc @ np.asarray(G).reshape(3, 3).T)
+
+
+def conceal_lever_arm_gyro(rec: Recording, r: np.ndarray, gyr_cal=None, acc_cal=None) -> Recording:
+    """Move the accelerometer by ``r`` (m, body frame) on the same rigid body, from the recording's
+    own gyroscope: ``f += (dw/dt x r + w x (w x r)) / g0`` with ``w`` the (calibrated) gyroscope and
+    ``dw/dt`` its five-point derivative. Needs no reference; truth: lever_arm += r (reference-free
+    mode; the added term carries the gyro's noise and any gyro calibration error, to first order).
+
+    Args:
+        rec: the recording (``acc`` in g, or LSB with ``acc_lsb_per_g``; ``gyr`` in rad/s unless
+            ``gyr_cal`` is given).
+        r: (3,) displacement (m).
+        gyr_cal: optional :class:`~jaxcal.sensor.LinearCal` turning ``gyr`` into rad/s.
+        acc_cal: optional :class:`~jaxcal.sensor.LinearCal` of ``acc``: the added force (g) enters
+            its output as ``A^-1 add``.
+    """
+    from jaxcal.constants import G0
+    from jaxcal.diagnose.kinematics import derivative5
+
+    w = np.asarray(rec.gyr, np.float64) if gyr_cal is None else np.asarray(gyr_cal.apply(np.asarray(rec.gyr, np.float64)))
+    dt = float(np.median(np.diff(rec.t)))
+    r = np.asarray(r, np.float64)
+    add = (np.cross(derivative5(w, dt), r) + np.cross(w, np.cross(w, r))) / G0
+    if acc_cal is not None:
+        add = np.linalg.solve(np.asarray(acc_cal.A, np.float64), add.T).T
+    elif rec.acc_unit == "LSB":
+        if rec.acc_lsb_per_g is None:
+            raise ValueError("conceal_lever_arm_gyro: raw accelerometer counts need acc_lsb_per_g")
+        add = add * np.broadcast_to(np.asarray(rec.acc_lsb_per_g, np.float64), (3,))
+    return rec.replace(acc=np.asarray(rec.acc, np.float64) + add)
+
+
+def conceal_gsens_cal(rec: Recording, G: np.ndarray, acc_cal, gyr_cal) -> Recording:
+    """Gyro reads ``+ G f`` with ``f`` the accelerometer calibrated by ``acc_cal`` (g) and the
+    added rate entering the gyro's output through ``gyr_cal`` (``A_g^-1 G f``): the g-sensitivity
+    of :func:`conceal_gsens` for a recording in any units. Truth: g_sensitivity += G (first order).
+
+    Args:
+        rec: the recording.
+        G: (3, 3) or (9,) g-sensitivity ((rad/s)/g).
+        acc_cal, gyr_cal: :class:`~jaxcal.sensor.LinearCal` of the two sensors.
+    """
+    f = np.asarray(acc_cal.apply(np.asarray(rec.acc, np.float64)))
+    add = f @ np.asarray(G, np.float64).reshape(3, 3).T
+    return rec.replace(gyr=np.asarray(rec.gyr, np.float64) + np.linalg.solve(np.asarray(gyr_cal.A, np.float64), add.T).T)
 
 
 def conceal_misalignment(rec: Recording, sensor: str, m6: np.ndarray) -> Recording:
