@@ -73,3 +73,30 @@ def make_rec(with_track: bool) -> Recording:
         tg = np.arange(-0.5, T_END + 0.5, 1 / 240.0)
         rec.update(gt_t=tg, gt_pos=truth_pos(tg), gt_quat=quat_wxyz(truth_rot(tg)))
     return recording_from_dict(rec, "analytic rig")
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    """``jaxcal.cli.main(argv)`` in-process: ``(exit code, stdout, stderr)``; a Python warning (which
+    a user would see as another stderr line) fails the test."""
+    import warnings
+
+    from jaxcal.cli import main
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        code = main([str(a) for a in argv])
+    assert not [w for w in caught if not issubclass(w.category, DeprecationWarning)], [str(w.message) for w in caught]
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def linear_model_file(path):
+    """A ``linear`` model file near an MPU-6050's datasheet (seeded), for the apply/export tests."""
+    from jaxcal.methods import CalibrationModel
+    from jaxcal.model_file import save_model
+
+    rng = np.random.default_rng(1)
+    state = {"acc": {"S": 16384.0 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 50, 3)},
+             "gyr": {"S": 7505.7 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 20, 3)}}
+    save_model(CalibrationModel("linear", ("acc", "gyr"), state, {"units": {"acc": "LSB", "gyr": "LSB"}}), path)
+    return path

@@ -27,6 +27,8 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))  # this checkout's jaxcal, not an installed one
 DATA = HERE.parent / "data"
 
+from helpers import linear_model_file  # noqa: E402
+
 from jaxcal.cli import main  # noqa: E402
 
 Case = tuple[str, str, bool, Callable[[Path], tuple[list, Path]]]  # command, name, valid, build -> (argv, out)
@@ -199,15 +201,7 @@ def _noise_cases(d: Path) -> list[Case]:
     return [c for c in out if not (c[2] and "auto" in c[1])]
 
 
-def _linear_model(p: Path) -> Path:
-    from jaxcal.methods import CalibrationModel
-    from jaxcal.model_file import save_model
-
-    rng = np.random.default_rng(1)
-    st = {"acc": {"S": 16384.0 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 50, 3)},
-          "gyr": {"S": 7505.7 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 20, 3)}}
-    save_model(CalibrationModel("linear", ("acc", "gyr"), st, {"units": {"acc": "LSB", "gyr": "LSB"}}), p)
-    return p
+_linear_model = linear_model_file
 
 
 BOMB = "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(

@@ -15,18 +15,17 @@ from __future__ import annotations
 
 import json
 import tempfile
-import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
+from helpers import run_cli
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from jaxcal import methods
-from jaxcal.cli import main
 from jaxcal.methods.base import Fitted, Method, apply_linear_state
 from jaxcal.recording import load_recording
 from jaxcal.sensor import Affine
@@ -40,15 +39,7 @@ HYP = settings(max_examples=25, deadline=None, suppress_health_check=[HealthChec
 # ----------------------------------------------------------------------------- helpers
 
 
-def run(capsys, *argv: Any) -> tuple[int, str, str]:
-    """``main(argv)`` in-process; a Python warning (which a user would see as another stderr line)
-    fails the test."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        code = main([str(a) for a in argv])
-    assert not [w for w in caught if not issubclass(w.category, DeprecationWarning)], [str(w.message) for w in caught]
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
+run = run_cli
 
 
 def partials(*dirs: Path) -> list[Path]:

@@ -12,14 +12,13 @@ from __future__ import annotations
 import os
 import re
 import stat
-import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from helpers import linear_model_file, run_cli
 
-from jaxcal.cli import main
 from jaxcal.diagnose import prepare
 from jaxcal.diagnose.gate import GATE, check_reference, reference_gate, report_gate
 from jaxcal.recording import load_recording
@@ -31,13 +30,7 @@ TUMVI = DATA / "tumvi_room1_512_16" / "room1.npz"
 needs_data = pytest.mark.skipif(not BROAD07.exists(), reason="data not present")
 
 
-def run(capsys, *argv: Any) -> tuple[int, str, str]:
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        code = main([str(a) for a in argv])
-    assert not [w for w in caught if not issubclass(w.category, DeprecationWarning)], [str(w.message) for w in caught]
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
+run = run_cli
 
 
 def refused(capsys, argv: list, *, absent: tuple = (), untouched: tuple = (), needles: tuple = ()) -> str:
@@ -302,15 +295,7 @@ def test_output_folders_get_the_usual_mode(tmp_path):
 # ----------------------------------------------------------------------------- imports: YAML, shapes, rotations
 
 
-def _linear_model_file(path: Path) -> Path:
-    from jaxcal.methods import CalibrationModel
-    from jaxcal.model_file import save_model
-
-    rng = np.random.default_rng(1)
-    state = {"acc": {"S": 16384.0 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 50, 3)},
-             "gyr": {"S": 7505.7 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 20, 3)}}
-    save_model(CalibrationModel("linear", ("acc", "gyr"), state, {"units": {"acc": "LSB", "gyr": "LSB"}}), path)
-    return path
+_linear_model_file = linear_model_file
 
 
 def _exported(fmt: str, tmp_path: Path) -> dict:
