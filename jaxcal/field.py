@@ -93,12 +93,14 @@ class FieldBatch(NamedTuple):
     initialisation differs between folds).
 
     Args:
-        acc: (J, N, 3) raw accelerometer (sequence ``j``: the motion between rests ``j`` and ``j + 1``): row 0 the mean of the rest before the motion, rows
-            ``1..n`` the motion's samples, row ``n + 1`` the mean of the rest after it; padded.
-        gyr: (M, N, 3) raw gyroscope of the same rows (row 0: the rest's last sample, so that the
-            propagation integrates the motion from the last rest sample to the first of the next).
-        mask: (M, N) 1 on rows, 0 on padding.
-        rest_n: (M, 2) samples in the rest before and after (the weight of rows 0 and ``n + 1``).
+        acc: (J, N, 3) raw accelerometer; sequence ``j`` is the motion between rests ``j`` and
+            ``j + 1``: row 0 the mean of the rest before it, rows ``1..n`` the motion's samples, row
+            ``n + 1`` the mean of the rest after it; padded.
+        gyr: (J, N, 3) raw gyroscope rates of the same rows, midpoint of two samples (row 0: the
+            rest's last sample and the motion's first), so that the propagation integrates the
+            motion from the last rest sample to the first of the next.
+        mask: (J, N) 1 on rows, 0 on padding.
+        rest_n: (J, 2) samples in the rest before and after (the weight of rows 0 and ``n + 1``).
         last: (J,) index of the last row (``n + 1``).
         usable: (J,) bool, the motion's samples and the rest after it are in the sequence (else
             only the rest before it).
