@@ -279,7 +279,8 @@ class FoldFits(NamedTuple):
 
 
 def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP, n_folds: int, kind: str = "diag",
-              residuals: str = "rests", config: mp.MultiposConfig = mp.MultiposConfig()) -> FoldFits:
+              residuals: str = "rests", config: mp.MultiposConfig = mp.MultiposConfig(),
+              whole: FieldInit | None = None) -> FoldFits:
     """Interleaved rest folds (the initial rest in none: every fold's stream starts from it).
     Fold ``k`` leaves out its rests (from the initial accelerometer fit), the motions that start
     or end at them (from the initial gyroscope fit and from the stream), and is scored on exactly
@@ -292,12 +293,14 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
         hp: :class:`~jaxcal.online.OnlineHP`.
         n_folds: number of folds (at most ``P - 1``).
         kind, residuals, config: as :func:`fit_field` and :func:`rest_init`.
+        whole: :func:`rest_init` on all the rests with ``config``, if the caller has it (``None``:
+            fitted here); the point at which each fold's observability is read.
     """
     P = data.pose_acc.shape[0]
     F = min(int(n_folds), P - 1)
     pf = np.concatenate([[-1], mp.fold_ids(P - 1, F)])
     seg_ok = np.asarray(data.seg_ok, bool) & np.asarray(batch.usable, bool)
-    whole = rest_init(data, config=config)
+    whole = rest_init(data, config=config) if whole is None else whole
     inits, n_seq, det, ins = [], [], [], []
     for k in range(F):
         aw = (pf != k).astype(np.float64)

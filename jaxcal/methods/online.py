@@ -192,6 +192,7 @@ class FieldSetup(NamedTuple):
         hp: the filter's :class:`~jaxcal.online.OnlineHP` (its ``sigma_acc`` measured at the rests).
         dt: sample period (s).
         kind: the filter's layout.
+        init: the initial calibration from all the rests (:func:`jaxcal.field.rest_init`).
     """
 
     rests: RestSequences
@@ -200,6 +201,7 @@ class FieldSetup(NamedTuple):
     hp: OnlineHP
     dt: float
     kind: str
+    init: field.FieldInit
 
 
 def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
@@ -224,7 +226,7 @@ def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
     acc = np.asarray(rec.acc, np.float64)
     noise = [((acc[a:b] - init.acc.b) @ init.acc.A.T).std(0).mean() for a, b in rests.intervals]
     hp = _hp(options, float(np.mean(noise)))
-    return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True))
+    return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True), init)
 
 
 def _fit_field(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, dict]:
@@ -236,7 +238,7 @@ def _fit_field(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, 
     log(f"online: initialised from the rests (|f| = 1 g) and the gravity carried between them; streaming the "
         f"{'every sample' if options.residuals == 'all' else 'rest'} residuals ({fs.kind}) ...")
     t0 = time.perf_counter()
-    init = field.rest_init(fs.rests.data, config=fs.config)
+    init = fs.init
     use = fs.rests.usable.astype(np.float64)
     cal = field.fit_field(fs.batch, init, fs.dt, fs.hp, fs.kind, options.residuals,
                           sigma_dir=field.carried_sigma(init, fs.rests.data, use))
@@ -323,13 +325,9 @@ def _fit_seq(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, di
 
 
 def _score(cals: tuple[Any, Any], data: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Per-rest ``| |f| - 1 g |`` (g) and per-motion carried-gravity angle (rad, NaN where unusable)."""
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        a, g = (jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), c) for c in cals)
-        ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
-        eg = np.asarray(mp.gyro_angle_errors(g, jnp.zeros((3, 3)), a, d))
-    return ea, np.where(np.asarray(data.seg_ok), eg, np.nan)
+    """Per-rest ``| |f| - 1 g |`` (g) and per-motion carried-gravity angle (rad, NaN where unusable)
+    of an ``(acc, gyr)`` pair without g-sensitivity (:func:`jaxcal.field.rest_scores`)."""
+    return field.rest_scores(field.FieldInit(*cals, np.zeros((3, 3))), data)
 
 
 def _row(ea: np.ndarray, eg: np.ndarray, how: str) -> dict[str, Any]:
@@ -493,7 +491,8 @@ def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: boo
     if log:
         log(f"online held out: {F} rest folds, each initialised and streamed without its rests ...")
     try:
-        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals, fs.config)
+        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals, fs.config,
+                                whole=fs.init)
     except ValueError as e:
         return ins, {"error": str(e)}
     how = (f"{F} interleaved rest folds (the initial rest in none), each initialised from its own rests, "
@@ -549,17 +548,16 @@ def rest_seq_recording(rec: Recording, options: OnlineOptions = OnlineOptions())
     changes = {f: np.asarray(getattr(rec, f))[idx] for f in PER_SAMPLE_FIELDS if getattr(rec, f) is not None}
     changes["t"] = np.arange(len(idx)) * recording_dt(rec)
     changes["seq"] = np.concatenate(seq)
-    for s, spec in zip(SENSORS, rest_spec(rec, options)):
+    for s, spec in zip(SENSORS, rest_spec(rests)):
         if recording_spec(rec, s) is None:  # no datasheet: the rests' diagonal stands in for it
             key = "acc_lsb_per_g" if s == "acc" else "gyr_lsb_per_rads"
             changes[key], changes[f"{s}_bias_lsb"] = np.asarray(spec.s), np.asarray(spec.b)
     return rec.replace(**changes, extra={}, gt_t=None, gt_pos=None, gt_quat=None)
 
 
-def rest_spec(rec: Recording, options: OnlineOptions = OnlineOptions()) -> tuple[Diag, Diag]:
-    """Datasheet-like diagonal models ``y = s x + b`` of both sensors from the rests
-    (:func:`jaxcal.field.rest_init`'s diagonal), for a method that needs datasheet values on a
-    recording without them (``online-thesis`` between rests)."""
-    rests = rest_sequences(rec, options)
+def rest_spec(rests: RestSequences) -> tuple[Diag, Diag]:
+    """Datasheet-like diagonal models ``y = s x + b`` of both sensors from a recording's rests
+    (:func:`rest_sequences`; :func:`jaxcal.field.rest_init`'s diagonal), for a method that needs
+    datasheet values on a recording without them (``online-thesis`` between rests)."""
     init = field.rest_init(rests.data)
     return tuple(Diag(1.0 / np.diag(np.asarray(c.A)), np.asarray(c.b)) for c in init[:2])
