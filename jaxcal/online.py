@@ -98,6 +98,9 @@ __all__ = [
 ]
 
 KINDS = ("diag", "affine")
+# Rotation steps per iteration of the sequence propagation's compiled loop (static; bit-identical for any
+# value): the loop overhead, not the 3x3 products, dominates the filter (benchmarks/online_unroll.py).
+PROPAGATE_UNROLL = 8
 
 
 # ----------------------------------------------------------------------------------------------
@@ -211,7 +214,7 @@ def _predict_acc_readings(
     w_c = _calibrate_gyr(lay, theta, u_gyr) * mask[:, None]
     f0 = f0_ref + tangent_basis(f0_ref) @ delta
     f0 = f0 / jnp.linalg.norm(f0)
-    f = propagate_specific_force(f0, w_c[:-1], dt)
+    f = propagate_specific_force(f0, w_c[:-1], dt, unroll=PROPAGATE_UNROLL)
     return jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
 
 
