@@ -172,7 +172,7 @@ def propagate_specific_force(
         dt: sample period (s).
         unroll: (static) steps per iteration of the compiled loop (``lax.scan``'s ``unroll``): the
             same products in the same order, so the result is bit-identical; fewer loop iterations
-            cost less where each step is a 3x3 product (:mod:`jaxcal.online` streams with 8).
+            cost less where each step is a 3x3 product (:mod:`jaxcal.online` streams with 4).
     """
     def step(f, r):
         f_next = r.T @ f
