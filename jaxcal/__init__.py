@@ -15,8 +15,6 @@ calibration ``x = A (y - b)``), :class:`CalibrationModel` (a fitted method's sta
 ``jaxcal.multipos.fit_multipos`` works after ``import jaxcal``. ARCHITECTURE.md maps the modules.
 """
 
-__version__ = "0.1.0"
-
 from jaxcal import constants as constants
 from jaxcal import diagnose as diagnose
 from jaxcal import eval as eval  # the subpackage; left out of __all__ so `import *` keeps the builtin
@@ -28,6 +26,7 @@ from jaxcal import online_thesis as online_thesis
 from jaxcal import rotation as rotation
 from jaxcal import sensor as sensor
 from jaxcal import simulate as simulate
+from jaxcal._version import __version__ as __version__
 from jaxcal.methods import CalibrationModel as CalibrationModel
 from jaxcal.methods import apply as apply
 from jaxcal.methods import fit as fit
