@@ -60,7 +60,8 @@ import numpy as np
 import yaml
 from jaxtyping import Float
 
-from jaxcal import __version__, methods
+from jaxcal import methods
+from jaxcal._version import __version__
 from jaxcal.arrays import Array
 from jaxcal.constants import G0, PHYS_UNIT
 from jaxcal.methods import CalibrationModel, ModelError

@@ -90,6 +90,7 @@ __all__ = [
     "online_nn_scan_jit",
     "online_pass",
     "online_scan",
+    "online_scan_jit",
     "spec_sequences",
     "tangent_basis",
     "thesis_acc_loss",
@@ -588,7 +589,8 @@ def online_scan(
     return _scan(make_filter(kind), state0, batch, dt, hp)
 
 
-_online_scan_jit = jax.jit(online_scan, static_argnames=("kind",))
+#: :func:`online_scan` compiled (``kind`` static), as :func:`online_pass` runs it.
+online_scan_jit = jax.jit(online_scan, static_argnames=("kind",))
 
 
 def online_pass(
@@ -622,7 +624,7 @@ def online_pass(
         batch = spec_sequences(f64(acc), f64(gyr), aspec, gspec, None if mask is None else f64(mask))
         hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
         state0 = make_filter(kind).init(hp64, jnp.float64)
-        return _online_scan_jit(state0, batch, f64(dt), hp64, kind)
+        return online_scan_jit(state0, batch, f64(dt), hp64, kind)
 
 
 # ----------------------------------------------------------------------------------------------

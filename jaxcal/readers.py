@@ -56,7 +56,7 @@ __all__ = [
     "read_generic_csv",
     "unit_factor",
     "unit_from_header",
-    "check_plausible",
+    "check_column_units",
     "MPU6050_ACC_LSB_PER_G",
     "MPU6050_GYR_LSB_PER_RADS",
 ]
@@ -204,8 +204,9 @@ def _check_time(t: np.ndarray, where: str) -> np.ndarray:
 _SENSOR_WORD = {"acc": "accelerometer", "gyr": "gyroscope"}
 
 
-def check_plausible(rec: Mapping[str, Any], where: str = "recording") -> None:
-    """Reject physical units that cannot be right (a wrong unit, e.g. m/s^2 declared as g).
+def check_column_units(rec: Mapping[str, Any], where: str = "recording") -> None:
+    """Reject the physical unit a file declares for its columns where the values cannot be in it
+    (a wrong unit, e.g. m/s^2 declared as g).
 
     The rule is :func:`jaxcal.recording.implausible` (the one every loaded recording passes too);
     here the message names the file's own column. ``rec`` is the ``name -> array`` mapping a
@@ -230,7 +231,7 @@ def finish_recording(rec: dict[str, Any], where: str, plausible: bool = True) ->
     """The reader's filled mapping as a validated :class:`~jaxcal.recording.Recording`: units
     plausible (naming the file's column), time strictly increasing, then the conventions' checks."""
     if plausible:
-        check_plausible(rec, where)
+        check_column_units(rec, where)
     rec.pop("_acc_columns", None)
     rec.pop("_gyr_columns", None)
     rec["t"] = _check_time(np.asarray(rec["t"], dtype=np.float64), where)

@@ -11,8 +11,6 @@ import sys
 from pathlib import Path
 
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, register_command
-from jaxcal.methods import ModelError
-from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import atomic_output
 
 __all__: list[str] = []
@@ -67,6 +65,8 @@ def _read_noise(path: str) -> dict:
 
 def _run_export(args: argparse.Namespace) -> int:
     from jaxcal import export  # imported on use, like diagnose
+    from jaxcal.methods import ModelError
+    from jaxcal.model_file import load_model
 
     suffix = _EXPORT_SUFFIX[args.format]
     if not args.out.lower().endswith(suffix):
@@ -143,6 +143,8 @@ def _add_import_model(p: argparse.ArgumentParser) -> None:
 
 def _run_import_model(args: argparse.Namespace) -> int:
     from jaxcal import export
+    from jaxcal.methods import ModelError
+    from jaxcal.model_file import save_model
 
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-from jaxcal import readers, rosbag
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _real, register_command
 from jaxcal.recording import Recording, save_recording
 
@@ -26,6 +25,8 @@ def _mapping(text: str) -> dict[str, str]:
 
 
 def _add_import(p: argparse.ArgumentParser) -> None:
+    from jaxcal import rosbag  # the readers are imported on use, not when the command registers
+
     p.add_argument(
         "format",
         metavar="FORMAT",
@@ -64,6 +65,8 @@ def _flags(names: dict[str, str] | tuple[str, ...], args: argparse.Namespace) ->
 
 
 def _read_rosbag(args: argparse.Namespace, csv_flags: list[str]) -> Recording:
+    from jaxcal import rosbag
+
     if csv_flags:
         raise UsageError(f"format 'rosbag' does not take {', '.join(csv_flags)}")
     if args.imu_topic is None:
@@ -73,6 +76,8 @@ def _read_rosbag(args: argparse.Namespace, csv_flags: list[str]) -> Recording:
 
 
 def _run_import(args: argparse.Namespace) -> int:
+    from jaxcal import readers
+
     if not args.out.lower().endswith((".npz", ".csv")):
         raise UsageError(f"--out {args.out}: recordings are written as .npz or .csv")
     _check_out_file(args.out, args.files)
