@@ -28,12 +28,12 @@ from jaxcal import online_thesis as online_thesis
 from jaxcal import rotation as rotation
 from jaxcal import sensor as sensor
 from jaxcal import simulate as simulate
+from jaxcal.formats import read as read
 from jaxcal.methods import CalibrationModel as CalibrationModel
 from jaxcal.methods import apply as apply
 from jaxcal.methods import fit as fit
 from jaxcal.model_file import load_model as load_model
 from jaxcal.model_file import save_model as save_model
-from jaxcal.readers import read as read
 from jaxcal.recording import Recording as Recording
 from jaxcal.recording import load_recording as load_recording
 from jaxcal.recording import save_recording as save_recording

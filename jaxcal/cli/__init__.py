@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from jaxcal import __version__, readers
+from jaxcal import __version__, formats
 from jaxcal.cli import calibrate, diagnose, export, importer, noise, simulate, sweep  # noqa: F401 - they register their commands
 from jaxcal.cli.calibrate import OPTION_FLAGS
 from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _Parser, register_command
@@ -82,7 +82,7 @@ def _use_cache(args: argparse.Namespace) -> None:
 def _bad_input_errors() -> tuple[type[BaseException], ...]:
     """The exceptions that mean bad input (exit status 2, one line): usage, recording, model and
     reader errors."""
-    return (UsageError, RecordingError, ModelError, readers.ReaderError)
+    return (UsageError, RecordingError, ModelError, formats.ReaderError)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
