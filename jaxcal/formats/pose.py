@@ -1,6 +1,6 @@
 """Reference pose tracks of the readers: unit quaternions (scalar first), ROS order ``x, y, z, w``
 re-ordered, and :func:`attach_pose` (a track interpolated to the IMU times: linear in position,
-slerp in attitude)."""
+:func:`jaxcal.rotation.slerp_pairs` in attitude)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from jaxcal.formats.table import ReaderError, check_time
+from jaxcal.rotation import slerp_pairs
 
 __all__ = ["attach_pose", "quat_xyzw_to_wxyz", "unit_quaternions"]
 
@@ -26,16 +27,8 @@ def _slerp_to(t_src: np.ndarray, q_src: np.ndarray, t_dst: np.ndarray) -> np.nda
         if np.dot(q_src[i], q_src[i - 1]) < 0:
             q_src[i] = -q_src[i]
     j = np.clip(np.searchsorted(t_src, t_dst) - 1, 0, len(t_src) - 2)
-    u = np.clip((t_dst - t_src[j]) / (t_src[j + 1] - t_src[j]), 0.0, 1.0)[:, None]
-    q0, q1 = q_src[j], q_src[j + 1]
-    d = np.clip(np.sum(q0 * q1, axis=1, keepdims=True), -1.0, 1.0)
-    th = np.arccos(d)
-    s = np.sin(th)
-    small = s < 1e-8
-    w0 = np.where(small, 1 - u, np.sin((1 - u) * th) / np.where(small, 1, s))
-    w1 = np.where(small, u, np.sin(u * th) / np.where(small, 1, s))
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    u = np.clip((t_dst - t_src[j]) / (t_src[j + 1] - t_src[j]), 0.0, 1.0)
+    return slerp_pairs(q_src[j], q_src[j + 1], u)
 
 
 def attach_pose(rec: dict[str, Any], t_gt: np.ndarray, pos: np.ndarray, q_wxyz: np.ndarray,
