@@ -30,8 +30,8 @@ from jaxcal.formats.linear_io import (
     rotation,
     rows,
 )
-from jaxcal.formats.noise_yaml import NOISE_KEYS, missing_noise_keys
-from jaxcal.formats.yaml_doc import document_text, imu0, jaxcal_fields, merge, ordered, parse_yaml, yaml_bias_units
+from jaxcal.formats.noise_yaml import NOISE_KEYS
+from jaxcal.formats.yaml_doc import document_text, exported, imu0, jaxcal_fields, merge, ordered, parse_yaml, yaml_bias_units
 from jaxcal.methods import CalibrationModel, ModelError
 
 __all__ = ["FORMAT", "KALIBR_CONVENTION", "KALIBR_KEYS", "document", "from_kalibr", "to_kalibr"]
@@ -141,6 +141,7 @@ def from_kalibr(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     G = G0 * inv(S_g, "M_g C_gyro_i C_i_b", where) @ A @ C_gyro_i @ C_i_b if keep else None
     return Imported(imported_model(fwd, units, {"format": "kalibr", "notes": notes}, G), tuple(notes))
 
+
 def document(d: Mapping[str, Any]) -> str:
     """The YAML text of :func:`to_kalibr`'s dict: the convention as a comment header (and the missing
     noise keys, if any, named), then the keys (:func:`jaxcal.formats.yaml_doc.document_text`).
@@ -148,12 +149,11 @@ def document(d: Mapping[str, Any]) -> str:
     Args:
         d: :func:`to_kalibr`'s dict.
     """
-    return document_text(KALIBR_CONVENTION, d, missing_noise_keys(d), opencv=False)
+    return document_text(KALIBR_CONVENTION, d, opencv=False)
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    d = to_kalibr(model, options.noise)
-    return Exported(document(d), tuple(missing_noise_keys(d)))
+    return exported(KALIBR_CONVENTION, to_kalibr(model, options.noise), opencv=False)
 
 
 FORMAT = Format("kalibr", "Kalibr scale-misalignment IMU intrinsics (YAML)", export=_export, suffix=".yaml",

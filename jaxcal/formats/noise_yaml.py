@@ -21,7 +21,6 @@ import numpy as np
 import yaml
 
 from jaxcal.allan import NoiseParams
-from jaxcal.formats.yaml_doc import opencv_body
 from jaxcal.safe_yaml import load_yaml
 
 __all__ = [
@@ -32,6 +31,7 @@ __all__ = [
     "noise_fields",
     "openvins_imu_chain",
     "openvins_yaml_text",
+    "opencv_body",
     "read_noise_yaml",
 ]
 
@@ -89,6 +89,13 @@ def missing_noise_keys(d: Mapping[str, Any]) -> list[str]:
     """The :data:`NOISE_KEYS` that a YAML export's dict (``{"imu0": {...}}``) lacks."""
     imu = d.get("imu0", {})
     return [k for k in NOISE_KEYS if k not in imu]
+
+
+def opencv_body(text: str) -> str:
+    """``text`` without an OpenCV ``%YAML:1.0`` first line (OpenVINS's files have one)."""
+    if text.startswith("%YAML:"):
+        return text.split("\n", 1)[1] if "\n" in text else ""
+    return text
 
 
 def read_noise_yaml(text: str) -> dict[str, Any]:

@@ -29,8 +29,7 @@ from jaxcal.formats.linear_io import (
     rotation,
     rows,
 )
-from jaxcal.formats.noise_yaml import missing_noise_keys
-from jaxcal.formats.yaml_doc import document_text, imu0, jaxcal_fields, merge, ordered, parse_yaml, yaml_bias_units
+from jaxcal.formats.yaml_doc import document_text, exported, imu0, jaxcal_fields, merge, ordered, parse_yaml, yaml_bias_units
 from jaxcal.methods import CalibrationModel, ModelError
 
 __all__ = ["FORMAT", "OPENVINS_CONVENTION", "OPENVINS_KEYS", "document", "from_openvins", "to_openvins"]
@@ -151,6 +150,7 @@ def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     G = G0 * inv(S_g, "R_IMUtoGYRO^T Dw", where) @ mats["Tg"] if keep else None
     return Imported(imported_model(fwd, units, {"format": "openvins", "notes": notes}, G), tuple(notes))
 
+
 def document(d: Mapping[str, Any]) -> str:
     """The YAML text of :func:`to_openvins`'s dict: ``%YAML:1.0`` first (OpenVINS's OpenCV reader expects
     it; a YAML reader skips that line), the convention as a comment header (and the missing noise keys,
@@ -159,12 +159,11 @@ def document(d: Mapping[str, Any]) -> str:
     Args:
         d: :func:`to_openvins`'s dict.
     """
-    return document_text(OPENVINS_CONVENTION, d, missing_noise_keys(d), opencv=True)
+    return document_text(OPENVINS_CONVENTION, d, opencv=True)
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    d = to_openvins(model, options.noise)
-    return Exported(document(d), tuple(missing_noise_keys(d)))
+    return exported(OPENVINS_CONVENTION, to_openvins(model, options.noise), opencv=True)
 
 
 FORMAT = Format("openvins", "OpenVINS kalibr_imu_chain.yaml IMU intrinsics (YAML)", export=_export, suffix=".yaml",

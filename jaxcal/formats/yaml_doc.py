@@ -12,7 +12,7 @@ Pure functions, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -20,17 +20,19 @@ import yaml
 
 from jaxcal import __version__
 from jaxcal.constants import PHYS_UNIT
+from jaxcal.formats.base import Exported
 from jaxcal.formats.linear_io import IMU_SENSORS, matrix, model_units
+from jaxcal.formats.noise_yaml import missing_noise_keys, opencv_body
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.safe_yaml import YamlLimitError, load_yaml
 from jaxcal.sensor import LinearCal
 
 __all__ = [
     "document_text",
+    "exported",
     "imu0",
     "jaxcal_fields",
     "merge",
-    "opencv_body",
     "ordered",
     "parse_yaml",
     "yaml_bias_units",
@@ -78,23 +80,23 @@ def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.ScalarNode:
 _IndentedDumper.add_representer(str, _represent_str)
 
 
-def document_text(convention: str, d: Mapping[str, Any], missing: Sequence[str], opencv: bool) -> str:
+def document_text(convention: str, d: Mapping[str, Any], opencv: bool) -> str:
     """The YAML text of a YAML export's dict.
 
     A ``#`` comment header states the ``convention``; with ``opencv`` the file starts with
     ``%YAML:1.0`` as OpenVINS's own configuration files do (its OpenCV reader expects it; a YAML reader
     skips that first line). Sequences are indented under their keys as OpenCV's reader requires. When
-    noise keys are ``missing``, a comment line names them. Floats are written with their shortest
-    round-trip ``repr``.
+    ``d["imu0"]`` lacks any of the Kalibr noise keys (:func:`~jaxcal.formats.noise_yaml.missing_noise_keys`),
+    a comment line names them. Floats are written with their shortest round-trip ``repr``.
 
     Args:
         convention: the format's convention text (several lines).
         d: the export's dict.
-        missing: the Kalibr noise keys ``d`` lacks.
         opencv: write OpenCV's ``%YAML:1.0`` first line.
     """
     head = [f"# IMU calibration exported by jaxcal {__version__}.", "#"]
     head += [f"# {line}".rstrip() for line in convention.splitlines()]
+    missing = missing_noise_keys(d)
     if missing:
         head += ["#", f"# Missing IMU noise keys (Kalibr imu.yaml, SI units): {', '.join(missing)}.",
                  "# Add them before the tool reads this file, e.g. `jaxcal export ... --noise imu.yaml` (from `jaxcal noise`)."]
@@ -103,11 +105,9 @@ def document_text(convention: str, d: Mapping[str, Any], missing: Sequence[str],
     return "\n".join(first + head) + "\n" + body
 
 
-def opencv_body(text: str) -> str:
-    """``text`` without an OpenCV ``%YAML:1.0`` first line (OpenVINS's files have one)."""
-    if text.startswith("%YAML:"):
-        return text.split("\n", 1)[1] if "\n" in text else ""
-    return text
+def exported(convention: str, d: Mapping[str, Any], opencv: bool) -> Exported:
+    """A YAML export's file (:func:`document_text`) with the noise keys it lacks."""
+    return Exported(document_text(convention, d, opencv), tuple(missing_noise_keys(d)))
 
 
 def parse_yaml(text: str) -> Any:
