@@ -31,7 +31,7 @@ _NAMES = {
     "fit": "jaxcal.methods",
     "load_model": "jaxcal.model_file",
     "save_model": "jaxcal.model_file",
-    "read": "jaxcal.readers",
+    "read": "jaxcal.formats",
     "Recording": "jaxcal.recording",
     "load_recording": "jaxcal.recording",
     "save_recording": "jaxcal.recording",

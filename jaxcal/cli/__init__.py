@@ -93,8 +93,8 @@ def _is_bad_input(e: BaseException) -> bool:
     start."""
     if isinstance(e, (UsageError, RecordingError)):
         return True
+    from jaxcal.formats import ReaderError
     from jaxcal.methods.base import ModelError
-    from jaxcal.readers import ReaderError
 
     return isinstance(e, (ModelError, ReaderError))
 
