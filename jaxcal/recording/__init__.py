@@ -57,7 +57,7 @@ One module per reason to change, all re-exported here (``from jaxcal.recording i
 :mod:`~jaxcal.recording.types` (:class:`Recording`, the key tables, :class:`RecordingError`),
 :mod:`~jaxcal.recording.validate` (:func:`recording_from_dict`, :func:`validate_recording`),
 :mod:`~jaxcal.recording.plausibility` (:func:`implausible`, :func:`check_plausible`),
-:mod:`~jaxcal.recording.rows` (:func:`take_rows`, :func:`sequence_slices`) and
+:mod:`~jaxcal.recording.rows` (:func:`take_rows`, :func:`crop`, :func:`sequence_slices`) and
 :mod:`~jaxcal.recording.files` (:func:`load_recording`, :func:`save_recording`, :func:`atomic_output`,
 :func:`read_npz_arrays`).
 """
@@ -66,7 +66,7 @@ from __future__ import annotations
 
 from jaxcal.recording.files import NPZ_READ_ERRORS, atomic_output, load_recording, read_npz_arrays, save_recording
 from jaxcal.recording.plausibility import ACC_NORM_G, GYR_MEDIAN_MAX, GYR_Q99_MAX, check_plausible, implausible
-from jaxcal.recording.rows import PER_SAMPLE_FIELDS, sequence_slices, take_rows
+from jaxcal.recording.rows import PER_SAMPLE_FIELDS, crop, sequence_slices, take_rows
 from jaxcal.recording.types import ACC_UNITS, GYR_UNITS, KNOWN_KEYS, REF_GAP_KEYS, Recording, RecordingError
 from jaxcal.recording.validate import (
     ABS_ZERO_C,
@@ -92,6 +92,7 @@ __all__ = [
     "save_recording",
     "recording_from_dict",
     "validate_recording",
+    "crop",
     "sequence_slices",
     "PER_SAMPLE_FIELDS",
     "take_rows",
