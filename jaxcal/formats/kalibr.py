@@ -31,20 +31,8 @@ from jaxcal.formats.linear_io import (
     rows,
 )
 from jaxcal.formats.noise_yaml import NOISE_KEYS
-from jaxcal.formats.ros_input import RosInput, not_carried
-from jaxcal.formats.yaml_doc import (
-    document_text,
-    export_cals,
-    exported,
-    imu0,
-    jaxcal_fields,
-    merge,
-    ordered,
-    parse_yaml,
-    ros_notes,
-    to_model_unit,
-    yaml_bias_units,
-)
+from jaxcal.formats.ros_input import RosInput
+from jaxcal.formats.yaml_doc import document_text, export_cals, imu0, imu_dict, parse_yaml, to_model_unit, yaml_bias_units, yaml_export
 from jaxcal.methods import CalibrationModel, ModelError
 
 __all__ = ["FORMAT", "KALIBR_CONVENTION", "KALIBR_KEYS", "document", "from_kalibr", "to_kalibr"]
@@ -112,9 +100,8 @@ def _kalibr_dict(model: CalibrationModel, imu_fields: Mapping[str, Any] | None, 
         "T_i_b": rows(T_i_b),
         "accelerometers": {"M": rows(M_a)},
         "gyroscopes": {"M": rows(M_g), "A": rows(_kalibr_A(model, S_g, C_gyro_i @ C_i_b)), "C_gyro_i": rows(C_gyro_i)},
-        **jaxcal_fields(model, cals, ros),
     }
-    return {"imu0": ordered(merge(imu, imu_fields), KALIBR_KEYS)}, ros
+    return imu_dict(model, imu, cals, ros, imu_fields, KALIBR_KEYS), ros
 
 
 def _kalibr_A(model: CalibrationModel, S_g: np.ndarray, C_gyro_b: np.ndarray) -> np.ndarray:
@@ -176,9 +163,7 @@ def document(d: Mapping[str, Any]) -> str:
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    d, ros = _kalibr_dict(model, options.noise, options.units, options.datasheet)
-    lost = not_carried("kalibr", options.units)
-    return exported(KALIBR_CONVENTION, d, opencv=False, notes=ros_notes("Kalibr", ros, lost), not_carried=lost)
+    return yaml_export("kalibr", "Kalibr", KALIBR_CONVENTION, _kalibr_dict, model, options, opencv=False)
 
 
 FORMAT = Format("kalibr", "Kalibr scale-misalignment IMU intrinsics (YAML)", export=_export, suffix=".yaml",

@@ -29,20 +29,8 @@ from jaxcal.formats.linear_io import (
     rotation,
     rows,
 )
-from jaxcal.formats.ros_input import RosInput, not_carried
-from jaxcal.formats.yaml_doc import (
-    document_text,
-    export_cals,
-    exported,
-    imu0,
-    jaxcal_fields,
-    merge,
-    ordered,
-    parse_yaml,
-    ros_notes,
-    to_model_unit,
-    yaml_bias_units,
-)
+from jaxcal.formats.ros_input import RosInput
+from jaxcal.formats.yaml_doc import document_text, export_cals, imu0, imu_dict, parse_yaml, to_model_unit, yaml_bias_units, yaml_export
 from jaxcal.methods import CalibrationModel, ModelError
 
 __all__ = ["FORMAT", "OPENVINS_CONVENTION", "OPENVINS_KEYS", "document", "from_openvins", "to_openvins"]
@@ -126,9 +114,8 @@ def _openvins_dict(model: CalibrationModel, imu_fields: Mapping[str, Any] | None
         "Ta": rows(Ta),
         "R_IMUtoACC": rows(R_IMUtoACC),
         "Tg": rows(gsens_forward(model, np.linalg.inv(cals["gyr"].A))),
-        **jaxcal_fields(model, cals, ros),
     }
-    return {"imu0": ordered(merge(imu, imu_fields), OPENVINS_KEYS)}, ros
+    return imu_dict(model, imu, cals, ros, imu_fields, OPENVINS_KEYS), ros
 
 
 def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
@@ -186,9 +173,7 @@ def document(d: Mapping[str, Any]) -> str:
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    d, ros = _openvins_dict(model, options.noise, options.units, options.datasheet)
-    lost = not_carried("openvins", options.units)
-    return exported(OPENVINS_CONVENTION, d, opencv=True, notes=ros_notes("OpenVINS", ros, lost), not_carried=lost)
+    return yaml_export("openvins", "OpenVINS", OPENVINS_CONVENTION, _openvins_dict, model, options, opencv=True)
 
 
 FORMAT = Format("openvins", "OpenVINS kalibr_imu_chain.yaml IMU intrinsics (YAML)", export=_export, suffix=".yaml",

@@ -15,7 +15,7 @@ Pure functions, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -23,10 +23,10 @@ import yaml
 
 from jaxcal._version import __version__
 from jaxcal.constants import PHYS_UNIT
-from jaxcal.formats.base import Exported
+from jaxcal.formats.base import Exported, ExportOptions
 from jaxcal.formats.linear_io import IMU_SENSORS, linear_cals, matrix, model_units, physical_cals
 from jaxcal.formats.noise_yaml import missing_noise_keys, opencv_body
-from jaxcal.formats.ros_input import ROS_UNIT, UNITS, RosInput, ros_cals, ros_input
+from jaxcal.formats.ros_input import ROS_UNIT, UNITS, RosInput, not_carried, ros_cals, ros_input
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.safe_yaml import YamlLimitError, load_yaml
 from jaxcal.sensor import LinearCal
@@ -36,6 +36,7 @@ __all__ = [
     "export_cals",
     "exported",
     "imu0",
+    "imu_dict",
     "jaxcal_fields",
     "merge",
     "ordered",
@@ -43,6 +44,7 @@ __all__ = [
     "ros_notes",
     "to_model_unit",
     "yaml_bias_units",
+    "yaml_export",
 ]
 
 
@@ -93,6 +95,22 @@ def export_cals(model: CalibrationModel, units: str, datasheet: Mapping[str, Any
         return phys, None
     ros = ros_input(model, linear_cals(model), datasheet)
     return ros_cals(phys, ros), ros
+
+
+def imu_dict(model: CalibrationModel, imu: dict[str, Any], cals: Mapping[str, LinearCal], ros: RosInput | None,
+             imu_fields: Mapping[str, Any] | None, order: tuple[str, ...]) -> dict[str, Any]:
+    """``{"imu0": ...}`` of a YAML export: the format's ``imu`` keys, then :func:`jaxcal_fields`, then the
+    caller's ``imu_fields`` (:func:`merge`), in ``order`` (:func:`ordered`)."""
+    return {"imu0": ordered(merge({**imu, **jaxcal_fields(model, cals, ros)}, imu_fields), order)}
+
+
+def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple[dict[str, Any], RosInput | None]],
+                model: CalibrationModel, options: ExportOptions, opencv: bool) -> Exported:
+    """A YAML export's file: ``build(model, noise, units, datasheet) -> (dict, RosInput | None)``, with the
+    header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
+    d, ros = build(model, options.noise, options.units, options.datasheet)
+    lost = not_carried(fmt, options.units)
+    return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
 
 
 def ros_notes(tool: str, ros: RosInput | None, not_carried: Sequence[str]) -> list[str]:
