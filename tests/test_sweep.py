@@ -81,6 +81,25 @@ def test_vmapped_group_equals_each_configuration_alone():
     assert res.rows[0]["test_gyr_mrads"] != res.rows[1]["test_gyr_mrads"]
 
 
+def test_a_row_does_not_depend_on_the_batch_it_ran_in():
+    """Issue 30: each distinct initial training (seed, init_lr, ...) runs once, unbatched, so its
+    numbers are the same in every batch; the rows at batch sizes 2, 4 and 8 stay far closer to
+    run_one than seeds are to each other."""
+    spec = sw.SweepSpec(grid={"w": [0.8, 1.0], "init_lr": [3e-3, 1e-2]}, fixed={"init_epochs": 50}, seeds=(0, 1),
+                        dataset=TINY)
+    configs = sw.expand(spec)
+    alone = [sw.run_one(spec, c) for c in configs]
+    runs = {b: sw.run_sweep(spec._replace(batch_size=b)).rows for b in (2, 4, 8)}
+    init = ("init_loss_acc", "init_loss_gyr", "init_test_acc_mg", "init_test_gyr_mrads")
+    for rows in runs.values():
+        assert [{k: r[k] for k in init} for r in rows] == [{k: r[k] for k in init} for r in runs[8]]  # exactly
+    acc = np.asarray([a["test_acc_mg"] for a in alone]).reshape(-1, 2)  # configurations x seeds 0, 1
+    seed_spread = float((np.abs(acc[:, 0] - acc[:, 1]) / acc.mean(1)).min())
+    worst = max(_close_rows(rows, [{k: r[k] for k in ("group", *spec.grid, "seed")} | a for r, a in zip(rows, alone, strict=True)])
+                for rows in runs.values())
+    assert 10 * worst < seed_spread  # measured: 1.1e-7 against 7e-2
+
+
 def test_offline_nn_vmapped_groups_equal_each_configuration_alone():
     # warm_start is static: two groups; seed 5 takes the fold_in key rule, seed 0 the split one.
     spec = sw.SweepSpec(target="offline-nn", grid={"lr": [3e-3, 3e-2], "warm_start": [True, False]},

@@ -72,29 +72,46 @@ def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, float]:
     return {k: float(v) for k, v in _metrics(data, r).items()}
 
 
-def _group_fn(datas, per_config, *, dt: float, init_every: int):
-    """vmap of the whole algorithm + metrics over the configuration axis (datas indexed by seed)."""
+def _group_fn(shared, per_config, *, dt: float, init_every: int):
+    """The batch: each distinct initial training once, one after another (``lax.map``: a job's
+    numbers do not depend on the batch), then the adaptive loop + metrics vmapped over the
+    configurations, each from its job's initial training (datas indexed by seed)."""
+    datas, job_seed, job_hps = shared
 
-    def one(i, hp):
-        d = jax.tree.map(lambda x: x[i], datas)._replace(dt=dt)
-        return _metrics(d, ot.run_dataset(d, hp, init_every))
+    def data(i):
+        return jax.tree.map(lambda x: x[i], datas)._replace(dt=dt)
+
+    inits = jax.lax.map(lambda job: ot.initial_training(data(job[0]), job[1], init_every), (job_seed, job_hps))
+
+    def one(i, j, hp):
+        d = data(i)
+        return _metrics(d, ot.run_from_initial(d, hp, jax.tree.map(lambda x: x[j], inits)))
 
     return jax.vmap(one)(*per_config)
 
 
 _JIT = jax.jit(_group_fn, static_argnames=("dt", "init_every"))
+_INIT_FIELDS = ("init_lr", "init_epochs", "acc_init_scale", "gyr_init_scale")  # what the initial training reads
 
 
 def prepare(spec: SweepSpec, key: tuple, configs: list[dict[str, Any]]) -> Prepared:
-    """One batch: the seeds' datasets stacked (shared), the configurations' hyperparameters stacked."""
+    """One batch: the seeds' datasets stacked and the distinct initial trainings (seed and
+    :data:`_INIT_FIELDS`) as jobs (shared); per configuration its seed, its job and its hyperparameters."""
     config = dataset_config(spec, TARGET, key)
     seeds = sorted({c["seed"] for c in configs})
     datas = [dataset2(jax.random.PRNGKey(s), config)._replace(dt=None) for s in seeds]
     stacked = jax.tree.map(lambda *xs: jnp.stack(xs), *datas)
-    hps = ot.stack_hparams([_hparams(full_config(spec, TARGET, c), c["seed"]) for c in configs])
+    fulls = [full_config(spec, TARGET, c) for c in configs]
+    hps = [_hparams(f, c["seed"]) for f, c in zip(fulls, configs, strict=True)]
+    jobs: dict[tuple, int] = {}
+    job_idx = [jobs.setdefault((c["seed"], *(f[k] for k in _INIT_FIELDS)), len(jobs)) for f, c in zip(fulls, configs, strict=True)]
+    first = {j: job_idx.index(j) for j in range(len(jobs))}
+    job_seed = jnp.asarray([seeds.index(configs[first[j]]["seed"]) for j in range(len(jobs))], dtype=jnp.int32)
+    job_hps = ot.stack_hparams([hps[first[j]] for j in range(len(jobs))])
     seed_idx = jnp.asarray([seeds.index(c["seed"]) for c in configs], dtype=jnp.int32)
-    init_every = int(full_config(spec, TARGET, configs[0])["init_every"])
-    return Prepared(functools.partial(_JIT, dt=1.0 / config.fs, init_every=init_every), stacked, (seed_idx, hps))
+    init_every = int(fulls[0]["init_every"])
+    return Prepared(functools.partial(_JIT, dt=1.0 / config.fs, init_every=init_every), (stacked, job_seed, job_hps),
+                    (seed_idx, jnp.asarray(job_idx, dtype=jnp.int32), ot.stack_hparams(hps)))
 
 
 def describe(spec: SweepSpec) -> str:
