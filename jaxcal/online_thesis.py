@@ -65,6 +65,7 @@ from jaxcal.sequences import Dataset2, Sequences, split_equal
 __all__ = [
     "INIT_EVERY",
     "ONLINE_MLP",
+    "InitialTraining",
     "OnlineThesisHParams",
     "OnlineThesisResult",
     "acc_bounds",
@@ -75,7 +76,9 @@ __all__ = [
     "fit_online_thesis_recording",
     "gyr_bounds",
     "gyro_loss",
+    "initial_training",
     "run_dataset",
+    "run_from_initial",
     "run_online_thesis",
     "run_sequences",
     "stack_hparams",
@@ -297,25 +300,34 @@ def _init_params(key: jax.Array, scale) -> Params:
     return jax.tree.map(lambda p: scale * p, init_mlp(key, ONLINE_MLP))
 
 
-def _online_thesis(
+class InitialTraining(NamedTuple):
+    """Outcome of the initial training (section 4.3), the adaptive loop's starting point.
+
+    Attributes:
+        acc_params, gyr_params: ``NN_a`` / ``NN_phi`` parameters after the initial training.
+        loss_acc, loss_gyr: their final initial-training MSE (g^2, (rad/s)^2).
+    """
+
+    acc_params: Params
+    gyr_params: Params
+    loss_acc: Float[Array, ""]
+    loss_gyr: Float[Array, ""]
+
+
+def _initial_training(
     acc: Float[Array, "M N 3"],
     gyr: Float[Array, "M N 3"],
-    dt: Float[Array, ""],
     acc_spec: Diag,
     gyr_spec: Diag,
     hp: OnlineThesisHParams,
-    val: Sequences | None,
     init_every: int = INIT_EVERY,
-) -> OnlineThesisResult:
-    """Initial training + one ``lax.scan`` over the ``M`` sequences (pure; jit/vmap-able)."""
-    cal_a = partial(calibrate_acc, spec=acc_spec)
-    cal_g = partial(calibrate_gyr, spec=gyr_spec)
+) -> InitialTraining:
+    """The initial training (4.3): every ``init_every``-th sequence, spec-converted targets (eq. 4.8).
 
-    # --- initial training (4.3): every tenth sequence, spec-converted targets (eq. 4.8).
+    It reads only ``hp.key``, ``init_lr``, ``init_epochs`` and the two initial scales.
+    """
     k_a, k_g = jax.random.split(hp.key)
     init_opt = optax.adam(hp.init_lr)
-    acc_i = acc[::init_every].reshape(-1, 3)
-    gyr_i = gyr[::init_every].reshape(-1, 3)
 
     def init_train(key, raw, cal, spec, scale):
         target = spec_convert(raw, spec)
@@ -324,10 +336,27 @@ def _online_thesis(
         p, _, loss = _adam_steps(loss_fn, p0, init_opt.init(p0), init_opt, hp.init_epochs)
         return p, loss
 
-    acc_p0, init_loss_a = init_train(k_a, acc_i, cal_a, acc_spec, hp.acc_init_scale)
-    gyr_p0, init_loss_g = init_train(k_g, gyr_i, cal_g, gyr_spec, hp.gyr_init_scale)
+    acc_p0, loss_a = init_train(k_a, acc[::init_every].reshape(-1, 3), partial(calibrate_acc, spec=acc_spec), acc_spec,
+                                hp.acc_init_scale)
+    gyr_p0, loss_g = init_train(k_g, gyr[::init_every].reshape(-1, 3), partial(calibrate_gyr, spec=gyr_spec), gyr_spec,
+                                hp.gyr_init_scale)
+    return InitialTraining(acc_p0, gyr_p0, loss_a, loss_g)
 
-    # --- adaptive loop (4.4-4.5): one scan step per sequence.
+
+def _adaptive(
+    acc: Float[Array, "M N 3"],
+    gyr: Float[Array, "M N 3"],
+    dt: Float[Array, ""],
+    acc_spec: Diag,
+    gyr_spec: Diag,
+    hp: OnlineThesisHParams,
+    val: Sequences | None,
+    init: InitialTraining,
+) -> OnlineThesisResult:
+    """The adaptive loop (4.4-4.5) from ``init``: one ``lax.scan`` step per sequence (pure; jit/vmap-able)."""
+    cal_a = partial(calibrate_acc, spec=acc_spec)
+    cal_g = partial(calibrate_gyr, spec=gyr_spec)
+    acc_p0, gyr_p0 = init.acc_params, init.gyr_params
     opt_g = optax.adam(hp.gyr_lr)
     opt_a = optax.adam(hp.acc_lr)
 
@@ -362,13 +391,28 @@ def _online_thesis(
         gyr_params=gyr_p,
         acc_params0=acc_p0,
         gyr_params0=gyr_p0,
-        init_loss_acc=init_loss_a,
-        init_loss_gyr=init_loss_g,
+        init_loss_acc=init.loss_acc,
+        init_loss_gyr=init.loss_gyr,
         gyr_loss=l_g,
         acc_loss=l_a,
         e_g=jnp.concatenate([e_g0[None], e_g]),
         e_a=jnp.concatenate([e_a0[None], e_a]),
     )
+
+
+def _online_thesis(
+    acc: Float[Array, "M N 3"],
+    gyr: Float[Array, "M N 3"],
+    dt: Float[Array, ""],
+    acc_spec: Diag,
+    gyr_spec: Diag,
+    hp: OnlineThesisHParams,
+    val: Sequences | None,
+    init_every: int = INIT_EVERY,
+) -> OnlineThesisResult:
+    """Initial training + one ``lax.scan`` over the ``M`` sequences (pure; jit/vmap-able)."""
+    init = _initial_training(acc, gyr, acc_spec, gyr_spec, hp, init_every)
+    return _adaptive(acc, gyr, dt, acc_spec, gyr_spec, hp, val, init)
 
 
 def run_dataset(data: Dataset2, hp: OnlineThesisHParams, init_every: int = INIT_EVERY) -> OnlineThesisResult:
@@ -384,6 +428,32 @@ def run_dataset(data: Dataset2, hp: OnlineThesisHParams, init_every: int = INIT_
     return _online_thesis(
         data.train.acc, data.train.gyr, dt, data.acc_spec, data.gyr_spec, hp, data.val, init_every
     )
+
+
+def initial_training(data: Dataset2, hp: OnlineThesisHParams, init_every: int = INIT_EVERY) -> InitialTraining:
+    """The initial training of :func:`run_dataset` alone (pure, un-jitted): it depends only on the data,
+    ``hp.key``, ``init_lr``, ``init_epochs`` and the initial scales, so configurations that share those
+    (a sweep of the online learning rates or ``w``) can share it (:func:`run_from_initial`).
+
+    Args:
+        data: :class:`~jaxcal.sequences.Dataset2` (traced).
+        hp: :class:`OnlineThesisHParams` (traced).
+        init_every: (static) stride of the sequences used for the initial training.
+    """
+    return _initial_training(data.train.acc, data.train.gyr, data.acc_spec, data.gyr_spec, hp, init_every)
+
+
+def run_from_initial(data: Dataset2, hp: OnlineThesisHParams, init: InitialTraining) -> OnlineThesisResult:
+    """The adaptive loop of :func:`run_dataset` from a given initial training (pure, un-jitted):
+    ``run_from_initial(data, hp, initial_training(data, hp, e))`` is ``run_dataset(data, hp, e)``.
+
+    Args:
+        data: :class:`~jaxcal.sequences.Dataset2` (traced).
+        hp: :class:`OnlineThesisHParams` (traced; its initial-training fields are not read).
+        init: :func:`initial_training` of the same data.
+    """
+    dt = jnp.asarray(data.dt, dtype=jnp.float32)
+    return _adaptive(data.train.acc, data.train.gyr, dt, data.acc_spec, data.gyr_spec, hp, data.val, init)
 
 
 #: ``run_online_thesis(data, hp)``: the whole algorithm on a simulated Dataset 2, one ``jit``.

@@ -1,5 +1,6 @@
 """jaxcal.sweep and ``jaxcal sweep``: grouping, vmapped == one by one, sharded == unsharded,
-kill-and-resume == uninterrupted, bad specs refused with one line (exit 2)."""
+kill-and-resume == uninterrupted, bad specs refused with one line (exit 2), and a new target
+(``tests/toy_sweep_target.py``) that needs only its module and one registry line."""
 
 import json
 import os
@@ -11,10 +12,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import toy_sweep_target
 
 from jaxcal import cli
 from jaxcal import sweep as sw
 from jaxcal.simulate.dataset2 import Dataset2Config
+from jaxcal.sweep import targets
+from jaxcal.sweep.targets import offline_nn
 
 TINY = Dataset2Config(n_train=20, n_val=4, n_test_acc=50, n_test_gyr=50)
 TINY_DICT = {"n_train": 20, "n_val": 4, "n_test_acc": 50, "n_test_gyr": 50}
@@ -77,6 +81,25 @@ def test_vmapped_group_equals_each_configuration_alone():
     assert res.rows[0]["test_gyr_mrads"] != res.rows[1]["test_gyr_mrads"]
 
 
+def test_a_row_does_not_depend_on_the_batch_it_ran_in():
+    """Issue 30: each distinct initial training (seed, init_lr, ...) runs once, unbatched, so its
+    numbers are the same in every batch; the rows at batch sizes 2, 4 and 8 stay far closer to
+    run_one than seeds are to each other."""
+    spec = sw.SweepSpec(grid={"w": [0.8, 1.0], "init_lr": [3e-3, 1e-2]}, fixed={"init_epochs": 50}, seeds=(0, 1),
+                        dataset=TINY)
+    configs = sw.expand(spec)
+    alone = [sw.run_one(spec, c) for c in configs]
+    runs = {b: sw.run_sweep(spec._replace(batch_size=b)).rows for b in (2, 4, 8)}
+    init = ("init_loss_acc", "init_loss_gyr", "init_test_acc_mg", "init_test_gyr_mrads")
+    for rows in runs.values():
+        assert [{k: r[k] for k in init} for r in rows] == [{k: r[k] for k in init} for r in runs[8]]  # exactly
+    acc = np.asarray([a["test_acc_mg"] for a in alone]).reshape(-1, 2)  # configurations x seeds 0, 1
+    seed_spread = float((np.abs(acc[:, 0] - acc[:, 1]) / acc.mean(1)).min())
+    worst = max(_close_rows(rows, [{k: r[k] for k in ("group", *spec.grid, "seed")} | a for r, a in zip(rows, alone, strict=True)])
+                for rows in runs.values())
+    assert 10 * worst < seed_spread  # measured: 1.1e-7 against 7e-2
+
+
 def test_offline_nn_vmapped_groups_equal_each_configuration_alone():
     # warm_start is static: two groups; seed 5 takes the fold_in key rule, seed 0 the split one.
     spec = sw.SweepSpec(target="offline-nn", grid={"lr": [3e-3, 3e-2], "warm_start": [True, False]},
@@ -122,13 +145,13 @@ def test_offline_nn_seeds_are_the_chapter_3_experiments_keys_and_rows():
 
     # experiments/offline.py: seed_keys = split(PRNGKey(1), n_seeds); init, perm = split(seed_key)
     seed_keys = jax.random.split(jax.random.PRNGKey(1), 5)
-    data, _ = sw._offline_data()
+    data, _ = offline_nn.offline_data()
     for s in (0, 4):
         init_key, perm_key = sw.offline_seed_keys(s)
         want_init, want_perm = jax.random.split(seed_keys[s])
         assert np.array_equal(init_key, want_init) and np.array_equal(perm_key, want_perm)
         sel = np.asarray(nested_subset_weights(want_perm, 1000, THESIS_SIZES))[THESIS_SIZES.index(50)] > 0
-        _, y, x = sw._offline_rows(data, s, 50)
+        _, y, x = offline_nn.offline_rows(data, s, 50)
         assert np.array_equal(y, np.asarray(data.train.acc)[sel]) and np.array_equal(x, np.asarray(data.train.acc_ref)[sel])
     base = jax.random.fold_in(jax.random.PRNGKey(1), 7)
     assert np.array_equal(sw.offline_seed_keys(7)[0], jax.random.split(base)[0])
@@ -263,3 +286,33 @@ def test_example_config_parses():
     spec = sw.load_sweep_spec(ROOT / "docs" / "sweep_example.json")
     assert len(sw.expand(spec)) == 4 * 3 * 2 and len(sw.plan(spec)) == 3
     assert np.isclose(spec.fixed["init_epochs"], 5000)
+
+
+def test_a_new_target_needs_only_a_module_and_a_registry_line(tmp_path):
+    """``tests/toy_sweep_target.py`` is a target (hyperparameters, batch runner, reference, report
+    columns); one line registers it; then the shared spec checks, grouping, batches, report and the
+    command line serve it, and its rows are its closed form and its own unvmapped reference."""
+    targets.register(toy_sweep_target.TARGET)  # the one registry line
+    try:
+        cfg = tmp_path / "toy.json"
+        cfg.write_text(json.dumps({"target": "toy-gd", "grid": {"steps": [3, 8], "lr": [0.05, 0.2, 0.45]},
+                                   "seeds": [0, 1], "batch_size": 4}))
+        assert cli.main(["sweep", str(cfg), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+        rows = json.loads((tmp_path / "out" / "sweep.json").read_text())["rows"]
+        # steps is static: two groups of 6, each cut into batches of 4 and 2
+        assert [r["group"] for r in rows] == ["steps=3#0"] * 4 + ["steps=3#1"] * 2 + ["steps=8#0"] * 4 + ["steps=8#1"] * 2
+        a = np.asarray(toy_sweep_target.CURVATURE)
+        for r in rows:  # independent truth: x_n - c = -c (1 - lr a)^n, in float64
+            want = np.linalg.norm(np.asarray(toy_sweep_target.centre(r["seed"]), np.float64) * (1 - r["lr"] * a) ** r["steps"])
+            assert abs(r["error"] - want) <= 1e-5 * want, r
+        spec = sw.load_sweep_spec(cfg)
+        alone = [{k: r[k] for k in ("group", "steps", "lr", "seed")} | sw.run_one(spec, c)
+                 for r, c in zip(rows, sw.expand(spec), strict=True)]
+        _close_rows(rows, alone)
+        assert "Lowest distance to the minimum" in (tmp_path / "out" / "sweep.md").read_text()
+        with pytest.raises(ValueError, match=r"lr = 1.5 must be in \(0, 1\]"):  # the target's ranges, the shared check
+            sw.spec_from_dict({"target": "toy-gd", "grid": {"lr": [1.5]}})
+    finally:
+        del targets.TARGETS["toy-gd"]
+    with pytest.raises(ValueError, match="unknown target 'toy-gd'"):
+        sw.spec_from_dict({"target": "toy-gd"})
