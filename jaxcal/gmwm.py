@@ -46,24 +46,9 @@ from jaxcal.allan import NoiseParams, overlapping_adev
 from jaxcal.arrays import Array
 
 __all__ = [
-    "PROCESSES",
-    "PARAMS",
-    "CANDIDATES",
-    "GmwmConfig",
-    "GmwmFit",
-    "dyadic_sizes",
-    "model_avar",
-    "avar_covariance",
-    "fit_model",
-    "fit_gmwm",
-    "gmwm_axes",
-    "predicted_halfwidth",
-    "record_length",
-    "noise_params",
-    "record_advice",
-    "advice_lines",
-    "fit_json",
-    "quantised_rate",
+    "PROCESSES", "PARAMS", "CANDIDATES", "GmwmConfig", "GmwmFit", "dyadic_sizes", "model_avar",
+    "avar_covariance", "fit_model", "fit_gmwm", "gmwm_axes", "predicted_halfwidth", "record_length",
+    "noise_params", "record_advice", "advice_lines", "fit_json", "quantised_rate",
 ]
 
 PROCESSES = ("WN", "QN", "BI", "RW", "DR", "GM")
@@ -373,7 +358,7 @@ def fit_model(model, avar: Float[Array, " T"], m: Int[Array, " T"], fs: float, W
     if "GM" not in model:
         v, obj = solve(1.0)
         return _to_params(model, v, 1.0), obj
-    grid = np.logspace(np.log10(2.0 / fs), np.log10(max(m[-1] / 8.0, 4.0) / fs), gm_grid)
+    grid = np.geomspace(*_gm_range(m, fs), gm_grid)
     objs = [solve(t)[1] for t in grid]
     i = int(np.argmin(objs))
     lo, hi = np.log(grid[max(i - 1, 0)]), np.log(grid[min(i + 1, gm_grid - 1)])
@@ -381,6 +366,10 @@ def fit_model(model, avar: Float[Array, " T"], m: Int[Array, " T"], fs: float, W
     tau = float(np.exp(best.x)) if best.fun < objs[i] else float(grid[i])
     v, obj = solve(tau)
     return _to_params(model, v, tau), obj
+
+
+def _gm_range(m, fs: float) -> tuple[float, float]:
+    return 2.0 / fs, max(m[-1] / 8.0, 4.0) / fs
 
 
 def _log_jacobian(model, p: dict, m, fs: float) -> np.ndarray:
@@ -420,11 +409,10 @@ def _fit_axis(avar: np.ndarray, m: np.ndarray, fs: float, n: int, config: GmwmCo
         crit["+".join(_ordered(mod))] = obj + config.penalty * len(_names(mod))
     best = min(fits, key=lambda mod: crit["+".join(_ordered(mod))])
     p, V, cov = _refine_log(best, fits[best][0], avar, m, fs, base, n)
-    names = _names(best)
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    z = norm.ppf(0.5 + config.level / 2.0)
-    val = np.array([p[k] for k in names])
-    return GmwmFit(_ordered(best), names, val, val * np.exp(-z * se), val * np.exp(z * se), se, crit, float(fits[best][1]),
+    names, se = _names(best), np.sqrt(np.maximum(np.diag(cov), 0.0))
+    val, z = np.array([p[k] for k in names]), norm.ppf(0.5 + config.level / 2.0)
+    wide = np.exp(np.minimum(z * se, 700.0))  # an undetermined parameter: (0, inf)
+    return GmwmFit(_ordered(best), names, val, val / wide, np.where(np.isfinite(se), val * wide, np.inf), se, crit, float(fits[best][1]),
                    m, avar, model_avar(best, p, m, fs), np.sqrt(np.diag(V)), n, fs, config.level)
 
 
@@ -447,7 +435,10 @@ def _refine_log(model, p: dict, avar, m, fs: float, base: _Lags, n: int, rounds:
     """
     names = _names(model)
     th = np.log([p[k] for k in names])
-    y = np.log(avar)
+    bounds = [th - 5.0, th + 5.0]  # within e^5 of the NNLS estimate, tau_gm within the grid's range
+    if "GM" in model:
+        bounds[0][-1], bounds[1][-1] = np.log(_gm_range(m, fs))
+    th, y = np.clip(th, *bounds), np.log(avar)
     for _ in range(rounds):
         V = _covariance_of(base, model, p, n)
         shift, C = _log_moments(model, p, m, fs, V)
@@ -461,7 +452,7 @@ def _refine_log(model, p: dict, avar, m, fs: float, base: _Lags, n: int, rounds:
             q = dict(zip(names, np.exp(t)))
             return -W @ (_log_jacobian(model, q, m, fs) / model_avar(model, q, m, fs)[:, None])
 
-        th = least_squares(resid, th, jac, method="lm").x
+        th = least_squares(resid, th, jac, bounds=bounds).x
         p = dict(zip(names, np.exp(th)))
     V = _covariance_of(base, model, p, n)
     return p, V, _log_param_cov(model, p, m, fs, V)
@@ -471,7 +462,8 @@ def _log_param_cov(model, p: dict, m, fs: float, V: np.ndarray) -> np.ndarray:
     """Covariance of the log parameters, ``(L' C^-1 L)^-1``, ``L = d log AVAR / d log parameter``."""
     _, C = _log_moments(model, p, m, fs, V)
     L = _log_jacobian(model, p, m, fs) / model_avar(model, p, m, fs)[:, None]
-    return np.linalg.inv(L.T @ np.linalg.solve(C, L))
+    F = L.T @ np.linalg.solve(C, L)
+    return np.linalg.inv(F) if np.linalg.cond(F) < 1e14 else np.full(F.shape, np.inf)  # else undetermined
 
 
 def gmwm_axes(x: Float[Array, "N C"], fs: float, config: GmwmConfig = GmwmConfig()) -> tuple[GmwmFit, ...]:

@@ -37,7 +37,7 @@ from jaxcal.allan import (
 )
 from jaxcal.arrays import Array
 from jaxcal.constants import G0
-from jaxcal.gmwm import GmwmConfig, advice_lines, fit_json, gmwm_axes, noise_params, record_advice
+from jaxcal.gmwm import CANDIDATES, GmwmConfig, advice_lines, fit_json, gmwm_axes, noise_params, record_advice
 from jaxcal.recording import Recording, RecordingError
 
 __all__ = [
@@ -264,7 +264,8 @@ def sensor_noise(x: Float[Array, "N C"], fs: float, taus_per_decade: int = 10, l
 
     The ADEV is computed up to ``m = N // 2`` (plotted, written); the GMWM (:func:`jaxcal.gmwm.gmwm_axes`,
     dyadic cluster sizes) and the slope-line reading use ``m <= N // 4`` only: beyond, a point holds
-    fewer than ``N / 2`` overlapping terms (EDF about 1 to 2).
+    fewer than ``N / 2`` overlapping terms (EDF about 1 to 2). An axis with N below the quantisation floor
+    ``q / sqrt(12 fs)`` (a filter's roll-off read as QN or a short GM) is refitted without QN and GM.
 
     Args:
         x: (N, C) rate samples.
@@ -277,6 +278,10 @@ def sensor_noise(x: Float[Array, "N C"], fs: float, taus_per_decade: int = 10, l
     keep = res.m <= max(1, (res.n_phase - 1) // 4)  # fit where EDF >= ~2 (the last taus hold one or two terms)
     sub = AllanResult(res.taus[keep], res.m[keep], res.adev[keep], res.n_terms[keep], res.n_phase)
     fits = gmwm_axes(x, fs, GmwmConfig(level=level))
+    floor = quantisation_step(x) / np.sqrt(12.0 * fs)
+    if any(f.get("N")[0] < q for f, q in zip(fits, floor)):  # short taus read as QN or GM: refit without them
+        no_qn = gmwm_axes(x, fs, GmwmConfig(candidates=tuple(c for c in CANDIDATES if not {"QN", "GM"} & set(c)), level=level))
+        fits = tuple(g if f.get("N")[0] < q else f for f, g, q in zip(fits, no_qn, floor))
     p = noise_params(fits)
     bound = np.min(hi[keep] * np.sqrt(3.0 / sub.taus)[:, None], axis=0)
     return SensorNoise(res, lo, hi, p, np.where(np.isfinite(p.K), p.K, bound), fit_noise(sub, level=level), fits)
