@@ -512,13 +512,15 @@ def record_length(fit: GmwmFit, name: str, target: float, max_fraction: float = 
     """Seconds of static log that would give ``name``'s interval a relative half-width of ``target``.
 
     Secant iterations on ``log(halfwidth)`` against ``log(samples)`` (:func:`predicted_halfwidth`; near a
-    straight line of slope -1/2), started from this log's length; NaN when the parameter was not selected.
+    straight line of slope -1/2), started from this log's length; NaN when the parameter was not selected
+    or has no finite interval.
     """
-    if name not in fit.names:
-        return float("nan")
     x0, x1 = np.log(fit.n), np.log(fit.n) + 1.0
-    y0, y1 = (np.log(predicted_halfwidth(fit, name, int(np.exp(x)), max_fraction) / target) for x in (x0, x1))
+    y0, y1 = (np.log(predicted_halfwidth(fit, name, int(np.exp(x)), max_fraction) / target) if name in fit.names else np.nan
+              for x in (x0, x1))
     for _ in range(8):
+        if not np.isfinite(y0 + y1):  # not selected, or not determined by this model's cluster times
+            return float("nan")
         slope = (y1 - y0) / (x1 - x0) if abs(x1 - x0) > 1e-9 else -0.5
         step = -y1 / (slope if slope < -0.05 else -0.5)
         x0, y0 = x1, y1
