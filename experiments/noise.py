@@ -349,12 +349,9 @@ def _innovation_spread(inflation: list[dict]) -> str:
             f"{min(f):.0f}x to {max(f):.0f}x across trials and axes")
 
 
-def _markdown(res: dict) -> str:
-    c, a = res["coverage"], res["allantools"]
-    L = ["# Noise parameters (`jaxcal noise`)", "",
-         f"Written by `experiments/noise.py` ({'quick' if res['quick'] else 'full'} form) in {res['seconds']:.0f} s "
-         f"(load average at start {res['load_start']}, at end {res['load_end']}; 2-core machine shared with other jobs).", "",
-         "## (a) Coverage on simulated static logs, GMWM beside the slope-line reading", "",
+def _coverage_md(c: dict) -> list[str]:
+    """Part (a) of the markdown: the coverage table per case, the other parameters, EuRoC, the record length."""
+    L = ["## (a) Coverage on simulated static logs, GMWM beside the slope-line reading", "",
          f"Each log is one axis, {CASE_HOURS:g} h at {CASE_FS:g} Hz ({int(CASE_HOURS * 3600 * CASE_FS):,} samples), of a composite process "
          f"with known parameters; white noise N = {N0:g} u/sqrt(Hz) unless stated, K such that the random walk meets it at the "
          "crossover tau_c = sqrt(3) N / K. `jaxcal noise` (`jaxcal.noise.sensor_noise`) reads each log twice: the GMWM "
@@ -386,8 +383,17 @@ def _markdown(res: dict) -> str:
           f"(`jaxcal.gmwm.record_length`: the fitted model's covariance at the longer length), median {rl['predicted_hours_median']:.2f} h "
           f"(range {rl['predicted_hours_range'][0]:.2f}-{rl['predicted_hours_range'][1]:.2f} h). {rl['logs']} logs of that length gave a "
           f"median half-width of +{100 * rl['halfwidth_at_predicted_median']:.0f} %, and their K intervals covered the truth in "
-          f"{100 * rl['K_coverage_at_predicted']:.0f} %.", "",
-         "## (b) Agreement with allantools", "",
+          f"{100 * rl['K_coverage_at_predicted']:.0f} %.", ""]
+    return L
+
+
+def _markdown(res: dict) -> str:
+    c, a = res["coverage"], res["allantools"]
+    L = ["# Noise parameters (`jaxcal noise`)", "",
+         f"Written by `experiments/noise.py` ({'quick' if res['quick'] else 'full'} form) in {res['seconds']:.0f} s "
+         f"(load average at start {res['load_start']}, at end {res['load_end']}; 2-core machine shared with other jobs).", ""]
+    L += _coverage_md(c)
+    L += ["## (b) Agreement with allantools", "",
           f"`jaxcal.allan.overlapping_adev` against `allantools.oadev(data_type='freq')` on the same {a['samples']:,}-sample log "
           f"(white + Gauss-Markov + random walk), {a['taus_compared']} cluster times (allantools drops the last one): "
           f"max relative difference {a['max_rel_diff']:.1e} (0: bit-identical; tests/test_allan.py measures 1.5e-14 on two-column data); same taus: {a['same_taus']}, same number of terms: {a['same_n_terms']}. "
