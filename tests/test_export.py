@@ -313,19 +313,29 @@ def _check_rotation(C: np.ndarray) -> None:
     assert abs(np.linalg.det(C) - 1.0) < 1e-14
 
 
+def _driver_input(imu: dict, y_a: np.ndarray, y_g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The samples the file's equation takes: a ROS driver's (the model's input times the conversion the
+    file states, ``jaxcal_ros_per_model_unit_*``) for a ``jaxcal_units: ros`` file, else the model's input."""
+    if imu.get("jaxcal_units") != "ros":
+        return y_a, y_g
+    return tuple(y * np.asarray(imu[f"jaxcal_ros_per_model_unit_{s}"], np.float64) for y, s in ((y_a, "acc"), (y_g, "gyr")))
+
+
+@pytest.mark.parametrize("units", ["ros", "model"])
 @pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
 @pytest.mark.parametrize("method", sorted(RECORDINGS))
-def test_yaml_round_trip_matches_apply(fmt, method, tmp_path, capsys):
+def test_yaml_round_trip_matches_apply(fmt, method, units, tmp_path, capsys):
     model = _model(method)
     rec = RECORDINGS[method]()
     save_model(model, tmp_path / "m.npz")
-    code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--out", tmp_path / "imu.yaml")
-    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1, err
+    code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--units", units, "--out", tmp_path / "imu.yaml")
+    lines = err.strip().splitlines()
+    assert code == 0 and out == "" and len(lines) == 2 and lines[1].startswith("jaxcal: not carried into"), err
     text = (tmp_path / "imu.yaml").read_text()
     assert text.startswith(("%YAML:1.0\n" if fmt == "openvins" else "") + "# IMU calibration exported by jaxcal")
     imu = _read_yaml(tmp_path / "imu.yaml")["imu0"]
-    assert imu["jaxcal_input_unit_acc"] == model.meta["units"]["acc"]
-    y_a, y_g = (np.asarray(getattr(rec, s), np.float64)[:300] for s in ("acc", "gyr"))
+    assert imu["jaxcal_input_unit_acc"] == ("m/s^2" if units == "ros" else model.meta["units"]["acc"])
+    y_a, y_g = _driver_input(imu, *(np.asarray(getattr(rec, s), np.float64)[:300] for s in ("acc", "gyr")))
     if fmt == "kalibr":
         assert imu["model"] == "scale-misalignment"
         for M in (imu["accelerometers"]["M"], imu["gyroscopes"]["M"]):
@@ -345,6 +355,49 @@ def test_yaml_round_trip_matches_apply(fmt, method, tmp_path, capsys):
     ref = methods.apply(model, rec)
     assert _rel_err(a, G0 * np.asarray(ref["acc_cal"], np.float64)[:300]) < YAML_REL_TOL
     assert _rel_err(w, np.asarray(ref["gyr_cal"], np.float64)[:300]) < YAML_REL_TOL
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+def test_ros_units_map_a_reading_at_rest_to_gravity(fmt, tmp_path, capsys):
+    """By default the file's own equation maps what a ROS driver publishes at rest (9.81 m/s^2 up) to
+    ~9.81 m/s^2, not ~96 (a model fitted on g) or ~1.6e5 (a raw one): closed forms of known models."""
+    S_a, b_a = np.diag([1.02, 0.98, 1.01]), np.array([0.05, -0.02, 0.01])  # g per g, g
+    S_g, b_g = np.diag([1.01, 0.99, 1.0]), np.array([0.01, 0.0, -0.02])  # rad/s
+    phys = CalibrationModel("linear", ("acc", "gyr"), {"acc": {"S": S_a, "b": b_a}, "gyr": {"S": S_g, "b": b_g}},
+                            {"units": {"acc": "g", "gyr": "rad/s"}})
+    k_a, k_g = 16384.0, 131.0 * 180.0 / np.pi  # datasheet LSB/g, LSB/(rad/s)
+    raw = CalibrationModel("linear", ("acc", "gyr"), {"acc": {"S": k_a * S_a, "b": k_a * b_a}, "gyr": {"S": k_g * S_g, "b": k_g * b_g}},
+                           {"units": {"acc": "LSB", "gyr": "LSB"}})
+    f_up = np.array([0.0, 0.0, 1.0])  # g, at rest
+    for model, extra, per_unit in ((phys, [], (G0, 1.0)), (raw, ["--acc-lsb-per-g", k_a, "--gyr-lsb-per-rads", k_g], (G0 / k_a, 1.0 / k_g))):
+        save_model(model, tmp_path / "m.npz")
+        code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, *extra, "--out", tmp_path / "r.yaml")
+        assert code == 0 and "not carried into" in err and "constant bias" in err, err
+        text = (tmp_path / "r.yaml").read_text()
+        assert "# Input (jaxcal_units: ros)" in text and "# Not carried to" in text
+        imu = _read_yaml(tmp_path / "r.yaml")["imu0"]
+        assert imu["jaxcal_units"] == "ros" and imu["jaxcal_input_unit_acc"] == "m/s^2"
+        np.testing.assert_allclose(imu["jaxcal_ros_per_model_unit_acc"], [per_unit[0]] * 3, rtol=1e-15)
+        y_a = (S_a @ f_up + b_a) * (k_a if model is raw else 1.0)  # the model's input at rest
+        y_ros = y_a * per_unit[0]  # what the driver publishes: ~9.81 m/s^2 up plus the bias
+        assert 9.5 < y_ros[2] < 10.5
+        apply = _kalibr_apply if fmt == "kalibr" else _openvins_apply
+        a, w = apply(imu, y_ros[None], (b_g * (k_g if model is raw else 1.0) * per_unit[1])[None])
+        np.testing.assert_allclose(a[0], G0 * f_up, atol=1e-12)  # 9.80665 m/s^2 up, the bias removed
+        np.testing.assert_allclose(w[0], 0.0, atol=1e-14)
+        assert imu["jaxcal_b_a"] == pytest.approx(list(b_a * G0), rel=1e-12)  # the bias in m/s^2: what the filter's state holds
+    # a raw model without datasheet values: the model's own mean scale, said in the file
+    save_model(raw, tmp_path / "m.npz")
+    assert _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--out", tmp_path / "f.yaml")[0] == 0
+    assert "no datasheet acc_lsb_per_g given, so the model's own mean scale" in (tmp_path / "f.yaml").read_text()
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--units", "model", "--acc-lsb-per-g", "1",
+                        "--out", tmp_path / "g.yaml")
+    assert code == 2 and "go with --units ros" in err
+    save_model(phys, tmp_path / "m.npz")
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--acc-lsb-per-g", "16384", "--out", tmp_path / "h.yaml")
+    assert code != 0 and "the acc model was fitted on g" in err, err
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", "json", "--units", "ros", "--out", tmp_path / "h.json")
+    assert code == 2 and "--units goes with --format" in err, err
 
 
 def _random_matrices() -> list[np.ndarray]:
@@ -425,7 +478,7 @@ def test_noise_keys_go_into_the_yaml_exports(fmt, tmp_path, capsys):
     (tmp_path / "imu.yaml").write_text(KALIBR_IMU_YAML)
     code, out, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--noise", tmp_path / "imu.yaml",
                           "--out", tmp_path / "x.yaml")
-    assert code == 0 and out == "" and len(err.strip().splitlines()) == 1 and "--noise" not in err, err
+    assert code == 0 and out == "" and len(err.strip().splitlines()) == 2 and "--noise" not in err, err
     text = (tmp_path / "x.yaml").read_text()
     assert "Missing IMU noise keys" not in text
     imu = _read_yaml(tmp_path / "x.yaml")["imu0"]
@@ -435,7 +488,7 @@ def test_noise_keys_go_into_the_yaml_exports(fmt, tmp_path, capsys):
         assert np.array_equal(np.asarray(imu["T_i_b"]), np.eye(4)) and imu["time_offset"] == 0.0
     # without --noise: the file and the stderr line name the missing keys
     code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--out", tmp_path / "y.yaml")
-    assert code == 0 and len(err.strip().splitlines()) == 1 and "pass --noise" in err, err
+    assert code == 0 and len(err.strip().splitlines()) == 2 and "pass --noise" in err, err
     assert "# Missing IMU noise keys (Kalibr imu.yaml, SI units): accelerometer_noise_density" in (tmp_path / "y.yaml").read_text()
     imu = _read_yaml(tmp_path / "y.yaml")["imu0"]
     assert not set(NOISE_VALUES) & set(imu)
@@ -715,6 +768,8 @@ def test_g_sensitivity_export_round_trips(fmt, tmp_path, capsys):
     assert code == 0, err
     sel = np.arange(0, rec.n, rec.n // 300)[:300]  # rests and moves
     y_a, y_g = (np.asarray(getattr(rec, s), np.float64)[sel] for s in ("acc", "gyr"))
+    if fmt in ("kalibr", "openvins"):  # their files take a ROS driver's input (the conversion they state)
+        y_a, y_g = _driver_input(_read_yaml(f)["imu0"], y_a, y_g)
     ref = methods.apply(model, rec)
     ref_a, ref_w = G0 * ref["acc_cal"][sel], ref["gyr_cal"][sel]
     # the G term is not negligible: measured max |G f| 0.64 % of the largest calibrated rate (a wrong sign,
@@ -837,7 +892,7 @@ def test_import_model_refuses_what_a_linear_model_cannot_hold():
 def test_import_model_notes_what_a_foreign_yaml_lacks():
     """A Kalibr/OpenVINS file without jaxcal's keys: bias 0 and raw input, said in the notes."""
     m = _model("linear")
-    doc = json.loads(json.dumps(to_openvins(m)))
+    doc = json.loads(json.dumps(to_openvins(m, units="model")))
     for key in ("jaxcal_b_a", "jaxcal_b_g", "jaxcal_input_unit_acc", "jaxcal_input_unit_gyr"):
         del doc["imu0"][key]
     imp = import_model("openvins", doc)

@@ -275,14 +275,22 @@ def test_noise_yaml_round_trips_through_both_files_and_both_exports():
         read_noise_yaml("accelerometer_noise_density: 1\naccelerometer_random_walk: 1\ngyroscope_noise_density: 1\nupdate_rate: 1\n")
 
 
-@pytest.mark.xfail(strict=True, reason="known bug, kept byte for byte: imu.yaml writes repr(6e-06) = '6e-06', which YAML 1.1 "
-                   "(PyYAML: Kalibr, jaxcal export --noise) reads as a string; a one-digit value needs '6.0e-06'")
 def test_noise_yaml_one_digit_values_read_back():
+    """A one-digit value (repr '6e-06', which YAML 1.1 reads as a string) is written '6.0e-06' and read back
+    by PyYAML (Kalibr's reader) as the float written; an exact yaml.safe_load of each written value agrees."""
+    import yaml
+
     from jaxcal.allan import NoiseParams
+    from jaxcal.formats.noise_yaml import yaml_float
 
     a = np.ones(3)
     p = NoiseParams(6e-6 * a, a, a, a, a, a, 6e-6 * a, a, a, a, a, a, 0.95)
-    assert read_noise_yaml(kalibr_yaml_text(kalibr_imu_yaml(p, p, 200.0, "/imu0")))["gyroscope_random_walk"] == 6e-6
+    text = kalibr_yaml_text(kalibr_imu_yaml(p, p, 200.0, "/imu0"))
+    assert "gyroscope_random_walk: 6.0e-06" in text
+    got = read_noise_yaml(text)
+    assert got["gyroscope_random_walk"] == 6e-6 and got["accelerometer_noise_density"] == 6e-6
+    for v in (6e-6, 1e-300, 5e-324, 1e22, 2.5e-7, 0.0, 200.0, 1.7e-4):
+        assert yaml.safe_load(f"k: {yaml_float(v)}")["k"] == v
 
 
 def test_a_new_format_needs_only_a_module_and_a_registry_line(tmp_path, capsys):

@@ -38,6 +38,15 @@ def _add_export(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise", metavar="IMU_YAML", default=None,
                    help="kalibr, openvins: a Kalibr imu.yaml (e.g. from `jaxcal noise`) whose noise densities, random "
                    "walks, update_rate and rostopic go into the file (without it, a comment names the missing keys)")
+    p.add_argument("--units", choices=("ros", "model"), default=None,
+                   help="kalibr, openvins: ros (default): the intrinsics on what a ROS driver publishes in "
+                   "sensor_msgs/Imu (m/s^2, rad/s; a model fitted on g: the driver's m/s^2 = g x 9.80665; a raw model: "
+                   "the datasheet conversion of --acc-lsb-per-g / --gyr-lsb-per-rads, or the model's own mean scale); "
+                   "model: on the model's own input unit, as before")
+    for key, what in (("acc", "LSB/g"), ("gyr", "LSB/(rad/s)")):
+        p.add_argument(f"--{key}-lsb-per-{'g' if key == 'acc' else 'rads'}", type=float, nargs="+", default=None,
+                       metavar="SCALE", help=f"kalibr, openvins with --units ros, a raw (LSB) model: the datasheet "
+                       f"{key} scale ({what}, one value or three) that the driver divides by")
 
 
 def _read_noise(path: str) -> dict:
@@ -63,14 +72,22 @@ def _run_export(args: argparse.Namespace) -> int:
     fmt = formats.get(args.format)
     if not args.out.lower().endswith(fmt.suffix):
         raise UsageError(f"--out {args.out}: the {args.format} export is written as {fmt.suffix}")
-    if args.noise is not None and "noise" not in fmt.export_options:
-        takes = " or ".join(f.name for f in formats.REGISTRY.values() if "noise" in f.export_options)
-        raise UsageError(f"--noise goes with --format {takes}, not {args.format}")
+    datasheet = {k: v if len(v) > 1 else v[0] for k, v in (("acc_lsb_per_g", args.acc_lsb_per_g),
+                                                          ("gyr_lsb_per_rads", args.gyr_lsb_per_rads)) if v is not None}
+    given = {"noise": args.noise is not None, "units": args.units is not None, "datasheet": bool(datasheet)}
+    for opt in [o for o, g in given.items() if g and o not in fmt.export_options]:
+        takes = " or ".join(f.name for f in formats.REGISTRY.values() if opt in f.export_options)
+        flag = {"datasheet": "--acc-lsb-per-g / --gyr-lsb-per-rads"}.get(opt, f"--{opt}")
+        raise UsageError(f"{flag} goes with --format {takes}, not {args.format}")
+    if any(len(v) not in (1, 3) for v in (args.acc_lsb_per_g, args.gyr_lsb_per_rads) if v is not None):
+        raise UsageError("--acc-lsb-per-g / --gyr-lsb-per-rads take one value or three")
+    if datasheet and args.units == "model":
+        raise UsageError("--acc-lsb-per-g / --gyr-lsb-per-rads convert a raw model to a ROS driver's input: they go with --units ros")
     _check_out_file(args.out, [args.model] + ([args.noise] if args.noise else []))
     noise = _read_noise(args.noise) if args.noise is not None else None
     model = load_model(args.model)
     try:
-        exported = formats.export(args.format, model, formats.ExportOptions(args.name, noise))
+        exported = formats.export(args.format, model, formats.ExportOptions(args.name, noise, args.units or "ros", datasheet))
     except ModelError as e:  # a non-linear model, a missing sensor, a singular matrix: say which file
         raise ModelError(f"{args.model}: {e}") from None
     missing, note = exported.missing_noise, ""
@@ -85,6 +102,8 @@ def _run_export(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
     print(f"{PROG}: wrote {args.out} ({args.format}: {model.method} model, {EQUATION} for "
           f"{', '.join(model.sensors)}){note}", file=sys.stderr)
+    if exported.not_carried:
+        print(f"{PROG}: not carried into {args.out} (said in its header): {'; '.join(exported.not_carried)}", file=sys.stderr)
     return 0
 
 
@@ -97,8 +116,10 @@ register_command(
         "Write the linear calibration x = A @ (y - b) of each sensor of MODEL (methods linear, multipos, "
         "online) as plain JSON (--format json) or a dependency-free C99 header with an apply function "
         "(--format c), as Kalibr's scale-misalignment / OpenVINS's kalibr_imu_chain.yaml IMU intrinsics "
-        "(--format kalibr|openvins: YAML, acc in m/s^2 and gyr in rad/s from raw samples in the model's input "
-        "unit; both sensors needed; --noise adds a Kalibr imu.yaml's noise keys), or as imucal's "
+        "(--format kalibr|openvins: YAML, acc in m/s^2 and gyr in rad/s from what a ROS driver publishes in "
+        "sensor_msgs/Imu, the driver's conversion written in the file; --units model: from raw samples in the "
+        "model's input unit; both sensors needed; --noise adds a Kalibr imu.yaml's noise keys; what the file "
+        "cannot carry is said in its header and on one stderr line), or as imucal's "
         "FerrarisCalibrationInfo JSON (--format imucal: m/s^2 and deg/s, read by imucal's "
         "CalibrationInfo.from_json_file). Each file states its convention. Non-linear models (nn, cubic, "
         "online-thesis) are refused.",

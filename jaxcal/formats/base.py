@@ -31,10 +31,17 @@ class ExportOptions(NamedTuple):
         name: C identifier prefix (``c``).
         noise: checked Kalibr ``imu.yaml`` noise keys (:func:`jaxcal.formats.noise_yaml.noise_fields`;
             ``kalibr``, ``openvins``), or ``None``.
+        units: ``kalibr``, ``openvins``: ``"ros"`` (the default: the intrinsics on a ROS driver's
+            ``sensor_msgs/Imu`` input, m/s^2 and rad/s; :mod:`jaxcal.formats.ros_input`) or ``"model"``
+            (on the model's own input unit, as before).
+        datasheet: ``kalibr``, ``openvins`` with ``units="ros"``: a raw (LSB) model's datasheet scales
+            ``acc_lsb_per_g`` / ``gyr_lsb_per_rads`` (one number or three), the conversion its driver applies.
     """
 
     name: str = "jaxcal_cal"
     noise: Mapping[str, Any] | None = None
+    units: str = "ros"
+    datasheet: Mapping[str, Any] | None = None
 
 
 class Exported(NamedTuple):
@@ -43,10 +50,12 @@ class Exported(NamedTuple):
     Args:
         text: the whole file, as written.
         missing_noise: the Kalibr noise keys the file lacks (YAML exports; empty otherwise).
+        not_carried: what the file does not give the tool that reads it, one phrase each (YAML exports).
     """
 
     text: str
     missing_noise: tuple[str, ...] = ()
+    not_carried: tuple[str, ...] = ()
 
 
 class Imported(NamedTuple):

@@ -1,9 +1,10 @@
 """Kalibr (ethz-asl/kalibr): its ``scale-misalignment`` IMU intrinsics, written and read back.
 
 :func:`to_kalibr` writes a linear model in Kalibr's parameterisation (:data:`KALIBR_CONVENTION`): the
-accelerometer in m/s^2 and the gyroscope in rad/s, the raw input ``y`` kept in the model's own input
-unit (the unit conversion and any counts-to-physical scale are folded into its matrices; a model fitted
-on ``LSB`` expects raw counts on the IMU topic). Kalibr holds no constant bias, so ``b`` goes under
+accelerometer in m/s^2 and the gyroscope in rad/s, by default from the input a ROS driver publishes
+(``sensor_msgs/Imu``, m/s^2 and rad/s: :mod:`jaxcal.formats.ros_input`, the conversion written in the
+file), or with ``units="model"`` from the raw input ``y`` in the model's own input unit (the unit
+conversion and any counts-to-physical scale folded into its matrices). Kalibr holds no constant bias, so ``b`` goes under
 ``jaxcal_b_a`` / ``jaxcal_b_g``; a gyro g-sensitivity is Kalibr's ``A = S_g G C_gyro_b^T / G0``. The noise
 keys of a Kalibr ``imu.yaml`` (:mod:`jaxcal.formats.noise_yaml`) go in as ``imu_fields``.
 :func:`document` writes the file, :func:`from_kalibr` reads it back as a ``linear`` model (lever arms
@@ -26,12 +27,12 @@ from jaxcal.formats.linear_io import (
     keep_gsens,
     lower_times_rotation,
     matrix,
-    physical_cals,
     rotation,
     rows,
 )
 from jaxcal.formats.noise_yaml import NOISE_KEYS
-from jaxcal.formats.yaml_doc import document_text, exported, imu0, jaxcal_fields, merge, ordered, parse_yaml, yaml_bias_units
+from jaxcal.formats.ros_input import RosInput
+from jaxcal.formats.yaml_doc import document_text, export_cals, imu0, imu_dict, parse_yaml, to_model_unit, yaml_bias_units, yaml_export
 from jaxcal.methods import CalibrationModel, ModelError
 
 __all__ = ["FORMAT", "KALIBR_CONVENTION", "KALIBR_KEYS", "document", "from_kalibr", "to_kalibr"]
@@ -51,7 +52,7 @@ model y_g = S_g (w_b + G f) + b_g with g-sensitivity G ((rad/s)/g, f = a_b / 9.8
 M_a, M_g: lower triangular (accelerometers.M, gyroscopes.M); C_gyro_i: rotation (gyroscopes.C_gyro_i);
 C_i_b: rotation block of T_i_b (translation 0), from jaxcal's calibrated frame b to Kalibr's IMU frame i,
 whose axes Kalibr ties to the accelerometer (lower-triangular M_a). alpha, omega: raw samples in the
-model's input unit (jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (Kalibr stores no
+input unit jaxcal_input_unit_acc/_gyr names; b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (Kalibr stores no
 constant bias). Noise keys: Kalibr's imu.yaml values (SI, continuous time). Matrices are lists of rows."""
 """The convention header of :func:`to_kalibr`'s file (also in its :func:`document`)."""
 
@@ -59,7 +60,8 @@ KALIBR_KEYS = ("T_i_b", *NOISE_KEYS, "model", "accelerometers", "gyroscopes")
 """The order of the ``imu0`` keys of :func:`to_kalibr`'s file (then jaxcal's ``jaxcal_*`` keys)."""
 
 
-def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None, units: str = "ros",
+              datasheet: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """A linear model as Kalibr's ``scale-misalignment`` IMU intrinsics (``{"imu0": {...}}``).
 
     Convention (:data:`KALIBR_CONVENTION`): Kalibr's forward model is ``alpha = M_a C_i_b a_b + b_a``,
@@ -73,12 +75,21 @@ def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = No
         model: a linear model with ``acc`` and ``gyr``.
         imu_fields: further ``imu0`` entries (e.g. ``rostopic``, ``update_rate``, noise densities),
             added after jaxcal's; they may not replace them.
+        units: ``"ros"``: ``alpha``, ``omega`` are a ROS driver's m/s^2 and rad/s
+            (:func:`~jaxcal.formats.yaml_doc.export_cals`); ``"model"``: the model's own input unit.
+        datasheet: a raw model's ``acc_lsb_per_g`` / ``gyr_lsb_per_rads`` (``units="ros"``).
 
     Raises:
         ModelError: the model is not linear, lacks a sensor, or has a singular matrix.
         ValueError: ``imu_fields`` would replace a calibration key.
     """
-    cals = physical_cals(model)
+    return _kalibr_dict(model, imu_fields, units, datasheet)[0]
+
+
+def _kalibr_dict(model: CalibrationModel, imu_fields: Mapping[str, Any] | None, units: str,
+                 datasheet: Mapping[str, Any] | None) -> tuple[dict[str, Any], RosInput | None]:
+    """:func:`to_kalibr`'s dict and the ROS conversion it used (``None`` with ``units="model"``)."""
+    cals, ros = export_cals(model, units, datasheet)
     S_a, S_g = np.linalg.inv(cals["acc"].A), np.linalg.inv(cals["gyr"].A)
     M_a, C_i_b = lower_times_rotation(S_a)
     M_g, C_gyro_i = lower_times_rotation(S_g @ C_i_b.T)
@@ -89,9 +100,8 @@ def to_kalibr(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = No
         "T_i_b": rows(T_i_b),
         "accelerometers": {"M": rows(M_a)},
         "gyroscopes": {"M": rows(M_g), "A": rows(_kalibr_A(model, S_g, C_gyro_i @ C_i_b)), "C_gyro_i": rows(C_gyro_i)},
-        **jaxcal_fields(model, cals),
     }
-    return {"imu0": ordered(merge(imu, imu_fields), KALIBR_KEYS)}
+    return imu_dict(model, imu, cals, ros, imu_fields, KALIBR_KEYS), ros
 
 
 def _kalibr_A(model: CalibrationModel, S_g: np.ndarray, C_gyro_b: np.ndarray) -> np.ndarray:
@@ -137,7 +147,7 @@ def from_kalibr(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     keep = keep_gsens(A, "A", where, drop_g_sensitivity, notes)
     bias, units = yaml_bias_units(imu, where, notes)
     S_g = M_g @ C_gyro_i @ C_i_b
-    fwd = {"acc": (G0 * (M_a @ C_i_b), bias["acc"]), "gyr": (S_g, bias["gyr"])}
+    fwd = to_model_unit({"acc": (G0 * (M_a @ C_i_b), bias["acc"]), "gyr": (S_g, bias["gyr"])}, imu, where)
     G = G0 * inv(S_g, "M_g C_gyro_i C_i_b", where) @ A @ C_gyro_i @ C_i_b if keep else None
     return Imported(imported_model(fwd, units, {"format": "kalibr", "notes": notes}, G), tuple(notes))
 
@@ -153,8 +163,8 @@ def document(d: Mapping[str, Any]) -> str:
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    return exported(KALIBR_CONVENTION, to_kalibr(model, options.noise), opencv=False)
+    return yaml_export("kalibr", "Kalibr", KALIBR_CONVENTION, _kalibr_dict, model, options, opencv=False)
 
 
 FORMAT = Format("kalibr", "Kalibr scale-misalignment IMU intrinsics (YAML)", export=_export, suffix=".yaml",
-                export_options=("noise",), parse=parse_yaml, import_model=from_kalibr)
+                export_options=("noise", "units", "datasheet"), parse=parse_yaml, import_model=from_kalibr)

@@ -33,6 +33,7 @@ __all__ = [
     "openvins_yaml_text",
     "opencv_body",
     "read_noise_yaml",
+    "yaml_float",
 ]
 
 NOISE_KEYS = (
@@ -170,6 +171,13 @@ def openvins_imu_chain(acc_noise: NoiseParams, gyr_noise: NoiseParams, rate_hz: 
     }
 
 
+def yaml_float(v: float) -> str:
+    """``v``'s shortest round-trip ``repr`` as a YAML 1.1 float: ``6e-06`` -> ``6.0e-06`` (YAML 1.1, and so
+    PyYAML and Kalibr, reads an exponent without a dot as a string)."""
+    r = repr(float(v))
+    return r.replace("e", ".0e", 1) if "e" in r and "." not in r else r
+
+
 def kalibr_yaml_text(d: dict, combine: str = "largest over the three axes", notes: tuple[str, ...] = ()) -> str:
     """Kalibr's ``imu.yaml`` text (the layout of Kalibr's wiki example, with comments).
 
@@ -185,14 +193,14 @@ def kalibr_yaml_text(d: dict, combine: str = "largest over the three axes", note
         "# These are the sensor's own values: a filter on dynamic data usually needs them inflated (see noise.json / README).\n"
         f"{extra}"
         "\n#Accelerometers\n"
-        f"accelerometer_noise_density: {d['accelerometer_noise_density']!r}  #Noise density (continuous-time) [m/s^2/sqrt(Hz)]\n"
-        f"accelerometer_random_walk: {d['accelerometer_random_walk']!r}  #Bias random walk [m/s^3/sqrt(Hz)]\n"
+        f"accelerometer_noise_density: {yaml_float(d['accelerometer_noise_density'])}  #Noise density (continuous-time) [m/s^2/sqrt(Hz)]\n"
+        f"accelerometer_random_walk: {yaml_float(d['accelerometer_random_walk'])}  #Bias random walk [m/s^3/sqrt(Hz)]\n"
         "\n#Gyroscopes\n"
-        f"gyroscope_noise_density: {d['gyroscope_noise_density']!r}  #Noise density (continuous-time) [rad/s/sqrt(Hz)]\n"
-        f"gyroscope_random_walk: {d['gyroscope_random_walk']!r}  #Bias random walk [rad/s^2/sqrt(Hz)]\n"
+        f"gyroscope_noise_density: {yaml_float(d['gyroscope_noise_density'])}  #Noise density (continuous-time) [rad/s/sqrt(Hz)]\n"
+        f"gyroscope_random_walk: {yaml_float(d['gyroscope_random_walk'])}  #Bias random walk [rad/s^2/sqrt(Hz)]\n"
         "\n"
         f"rostopic: {d['rostopic']}  #the IMU ROS topic\n"
-        f"update_rate: {d['update_rate']!r}  #Hz (for discretization of the values above)\n"
+        f"update_rate: {yaml_float(d['update_rate'])}  #Hz (for discretization of the values above)\n"
     )
 
 

@@ -2,8 +2,9 @@
 
 :func:`to_openvins` writes a linear model as OpenVINS reads it (:data:`OPENVINS_CONVENTION`, IMU model
 ``"kalibr"``: lower-triangular ``Tw``, ``Ta`` times rotations), the accelerometer in m/s^2 and the
-gyroscope in rad/s from raw samples in the model's input unit; the bias under ``jaxcal_b_a`` /
-``jaxcal_b_g`` (OpenVINS holds no constant bias); a gyro g-sensitivity as ``Tg = S_g G / G0``. With the
+gyroscope in rad/s, by default from the input a ROS driver publishes (``sensor_msgs/Imu``, m/s^2 and
+rad/s: :mod:`jaxcal.formats.ros_input`), with ``units="model"`` from raw samples in the model's input
+unit; the bias under ``jaxcal_b_a`` / ``jaxcal_b_g`` (OpenVINS holds no constant bias); a gyro g-sensitivity as ``Tg = S_g G / G0``. With the
 noise keys of a Kalibr ``imu.yaml`` the file has every key of OpenVINS's own ``kalibr_imu_chain.yaml``
 (:data:`OPENVINS_KEYS`). :func:`document` writes the file (``%YAML:1.0`` first, as OpenCV's reader
 expects), :func:`from_openvins` reads it back as a ``linear`` model. Pure functions, no I/O.
@@ -25,11 +26,11 @@ from jaxcal.formats.linear_io import (
     keep_gsens,
     lower_times_rotation,
     matrix,
-    physical_cals,
     rotation,
     rows,
 )
-from jaxcal.formats.yaml_doc import document_text, exported, imu0, jaxcal_fields, merge, ordered, parse_yaml, yaml_bias_units
+from jaxcal.formats.ros_input import RosInput
+from jaxcal.formats.yaml_doc import document_text, export_cals, imu0, imu_dict, parse_yaml, to_model_unit, yaml_bias_units, yaml_export
 from jaxcal.methods import CalibrationModel, ModelError
 
 __all__ = ["FORMAT", "OPENVINS_CONVENTION", "OPENVINS_KEYS", "document", "from_openvins", "to_openvins"]
@@ -44,8 +45,8 @@ propagation_analytical):
 Tg (input unit per m/s^2) = S_g @ G / 9.80665 for a jaxcal model y_g = S_g (w + G f) + b_g with g-sensitivity G
 ((rad/s)/g, f = a_I / 9.80665, S_g = Tw R_IMUtoGYRO); 0 when the model has none.
 Tw, Ta: lower triangular (the "kalibr" model keeps the lower triangle of Dw, Da); I: jaxcal's calibrated
-frame (T_i_b identity, time_offset 0). a_m, w_m: raw samples in the model's input unit
-(jaxcal_input_unit_acc/_gyr); b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (OpenVINS stores no constant
+frame (T_i_b identity, time_offset 0). a_m, w_m: raw samples in the input unit
+jaxcal_input_unit_acc/_gyr names; b_a, b_g: jaxcal_b_a, jaxcal_b_g in that unit (OpenVINS stores no constant
 bias). Noise keys: Kalibr's imu.yaml values (SI, continuous time). Matrices are lists of rows."""
 """The convention header of :func:`to_openvins`'s file (also in its :func:`document`)."""
 
@@ -70,7 +71,8 @@ config/rpng_sim/kalibr_imu_chain.yaml), in its order; :func:`to_openvins` writes
 given the noise keys, then jaxcal's ``jaxcal_*`` keys."""
 
 
-def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = None, units: str = "ros",
+                datasheet: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """A linear model as OpenVINS's IMU intrinsics in its ``kalibr_imu_chain.yaml`` form (``{"imu0": {...}}``).
 
     Convention (:data:`OPENVINS_CONVENTION`): OpenVINS corrects ``a_I = R_IMUtoACC^T Ta^{-1} (a_m - b_a)``
@@ -86,12 +88,21 @@ def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = 
         model: a linear model with ``acc`` and ``gyr``.
         imu_fields: further ``imu0`` entries (e.g. ``rostopic``, ``update_rate``, noise densities),
             added after jaxcal's; they may not replace them.
+        units: ``"ros"``: ``a_m``, ``w_m`` are a ROS driver's m/s^2 and rad/s
+            (:func:`~jaxcal.formats.yaml_doc.export_cals`); ``"model"``: the model's own input unit.
+        datasheet: a raw model's ``acc_lsb_per_g`` / ``gyr_lsb_per_rads`` (``units="ros"``).
 
     Raises:
         ModelError: the model is not linear, lacks a sensor, or has a singular matrix.
         ValueError: ``imu_fields`` would replace a calibration key.
     """
-    cals = physical_cals(model)
+    return _openvins_dict(model, imu_fields, units, datasheet)[0]
+
+
+def _openvins_dict(model: CalibrationModel, imu_fields: Mapping[str, Any] | None, units: str,
+                   datasheet: Mapping[str, Any] | None) -> tuple[dict[str, Any], RosInput | None]:
+    """:func:`to_openvins`'s dict and the ROS conversion it used (``None`` with ``units="model"``)."""
+    cals, ros = export_cals(model, units, datasheet)
     Ta, R_IMUtoACC = lower_times_rotation(np.linalg.inv(cals["acc"].A))
     Tw, R_IMUtoGYRO = lower_times_rotation(np.linalg.inv(cals["gyr"].A))
     imu = {
@@ -103,9 +114,8 @@ def to_openvins(model: CalibrationModel, imu_fields: Mapping[str, Any] | None = 
         "Ta": rows(Ta),
         "R_IMUtoACC": rows(R_IMUtoACC),
         "Tg": rows(gsens_forward(model, np.linalg.inv(cals["gyr"].A))),
-        **jaxcal_fields(model, cals),
     }
-    return {"imu0": ordered(merge(imu, imu_fields), OPENVINS_KEYS)}
+    return imu_dict(model, imu, cals, ros, imu_fields, OPENVINS_KEYS), ros
 
 
 def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
@@ -146,7 +156,7 @@ def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
     Da, Dw = np.tril(inv(mats["Ta"], "Ta", where)), np.tril(inv(mats["Tw"], "Tw", where))
     S_a = G0 * inv(mats["R_IMUtoACC"].T @ Da, "R_IMUtoACC^T Da", where)
     S_g = inv(mats["R_IMUtoGYRO"].T @ Dw, "R_IMUtoGYRO^T Dw", where)
-    fwd = {"acc": (S_a, bias["acc"]), "gyr": (S_g, bias["gyr"])}
+    fwd = to_model_unit({"acc": (S_a, bias["acc"]), "gyr": (S_g, bias["gyr"])}, imu, where)
     G = G0 * inv(S_g, "R_IMUtoGYRO^T Dw", where) @ mats["Tg"] if keep else None
     return Imported(imported_model(fwd, units, {"format": "openvins", "notes": notes}, G), tuple(notes))
 
@@ -163,8 +173,8 @@ def document(d: Mapping[str, Any]) -> str:
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    return exported(OPENVINS_CONVENTION, to_openvins(model, options.noise), opencv=True)
+    return yaml_export("openvins", "OpenVINS", OPENVINS_CONVENTION, _openvins_dict, model, options, opencv=True)
 
 
 FORMAT = Format("openvins", "OpenVINS kalibr_imu_chain.yaml IMU intrinsics (YAML)", export=_export, suffix=".yaml",
-                export_options=("noise",), parse=parse_yaml, import_model=from_openvins)
+                export_options=("noise", "units", "datasheet"), parse=parse_yaml, import_model=from_openvins)

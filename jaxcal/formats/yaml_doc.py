@@ -1,8 +1,11 @@
 """What the two YAML exports (Kalibr, OpenVINS) share: the document text, the ``jaxcal_*`` keys, parsing.
 
-Both exports keep the raw input ``y`` in the model's own input unit and write the bias, which
-neither tool holds as a constant, under the extra keys ``jaxcal_b_a`` / ``jaxcal_b_g``
-(:func:`jaxcal_fields`; read back by :func:`yaml_bias_units`). :func:`document_text` writes the
+Both exports write the intrinsics on a ROS driver's input (m/s^2, rad/s; :func:`export_cals` with
+:mod:`jaxcal.formats.ros_input`, the conversion in the ``jaxcal_*`` keys and the header) or, with
+``units="model"``, on the model's own input unit, and the bias, which neither tool holds as a
+constant, under the extra keys ``jaxcal_b_a`` / ``jaxcal_b_g`` (:func:`jaxcal_fields`; read back by
+:func:`yaml_bias_units` and :func:`to_model_unit`); :func:`ros_notes` says in the header what the
+tool does not get. :func:`document_text` writes the
 file: a ``#`` comment header stating the convention, ``%YAML:1.0`` first for OpenCV readers, sequences
 indented under their keys, floats as their shortest round-trip ``repr``. :func:`parse_yaml` reads one
 back within :mod:`jaxcal.safe_yaml`'s bounds.
@@ -12,7 +15,7 @@ Pure functions, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -20,36 +23,105 @@ import yaml
 
 from jaxcal._version import __version__
 from jaxcal.constants import PHYS_UNIT
-from jaxcal.formats.base import Exported
-from jaxcal.formats.linear_io import IMU_SENSORS, matrix, model_units
+from jaxcal.formats.base import Exported, ExportOptions
+from jaxcal.formats.linear_io import IMU_SENSORS, linear_cals, matrix, model_units, physical_cals
 from jaxcal.formats.noise_yaml import missing_noise_keys, opencv_body
+from jaxcal.formats.ros_input import ROS_UNIT, UNITS, RosInput, not_carried, ros_cals, ros_input
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.safe_yaml import YamlLimitError, load_yaml
 from jaxcal.sensor import LinearCal
 
 __all__ = [
     "document_text",
+    "export_cals",
     "exported",
     "imu0",
+    "imu_dict",
     "jaxcal_fields",
     "merge",
     "ordered",
     "parse_yaml",
+    "ros_notes",
+    "to_model_unit",
     "yaml_bias_units",
+    "yaml_export",
 ]
 
 
-def jaxcal_fields(model: CalibrationModel, cals: Mapping[str, LinearCal]) -> dict[str, Any]:
-    """The ``jaxcal_*`` keys of a YAML export: raw biases, input units, method and version."""
-    units = {s: model_units(model, s)[0] or "unit not recorded" for s in IMU_SENSORS}
-    return {
+def jaxcal_fields(model: CalibrationModel, cals: Mapping[str, LinearCal], ros: RosInput | None = None) -> dict[str, Any]:
+    """The ``jaxcal_*`` keys of a YAML export: biases and input units of the file's equation, method and version.
+
+    With ``ros`` (:func:`export_cals`) the input is the ROS driver's (m/s^2, rad/s) and the keys add
+    ``jaxcal_units: ros``, the model's own input unit and the driver's conversion per sensor
+    (``jaxcal_model_unit_*``, ``jaxcal_ros_per_model_unit_*``), which the import undoes.
+    """
+    if ros is None:
+        units = {s: model_units(model, s)[0] or "unit not recorded" for s in IMU_SENSORS}
+    else:
+        units = dict(ROS_UNIT)
+    out: dict[str, Any] = {
         "jaxcal_b_a": [float(v) for v in cals["acc"].b],
         "jaxcal_b_g": [float(v) for v in cals["gyr"].b],
         "jaxcal_input_unit_acc": units["acc"],
         "jaxcal_input_unit_gyr": units["gyr"],
-        "jaxcal_method": model.method,
-        "jaxcal_version": __version__,
     }
+    if ros is not None:
+        out["jaxcal_units"] = "ros"
+        for s in IMU_SENSORS:
+            out[f"jaxcal_model_unit_{s}"] = ros.model_unit[s]
+            out[f"jaxcal_ros_per_model_unit_{s}"] = [float(v) for v in ros.per_model_unit[s]]
+    return {**out, "jaxcal_method": model.method, "jaxcal_version": __version__}
+
+
+def export_cals(model: CalibrationModel, units: str, datasheet: Mapping[str, Any] | None) -> tuple[dict[str, LinearCal], RosInput | None]:
+    """``acc``, ``gyr`` -> the ``x = A (y - b)`` a YAML export writes (m/s^2, rad/s), and the ROS conversion.
+
+    Args:
+        model: a linear model with both sensors.
+        units: ``"ros"``: ``y`` is the ROS driver's input (:func:`~jaxcal.formats.ros_input.ros_cals`);
+            ``"model"``: ``y`` in the model's input unit (:func:`~jaxcal.formats.linear_io.physical_cals`, ``None``).
+        datasheet: a raw model's datasheet scales (``units="ros"`` only).
+
+    Raises:
+        ModelError: an unknown ``units``, datasheet scales with ``units="model"``, or what the
+            exports refuse (a non-linear model, a missing sensor).
+    """
+    if units not in UNITS:
+        raise ModelError(f"units must be one of {', '.join(UNITS)}, got {units!r}")
+    phys = physical_cals(model)
+    if units == "model":
+        if datasheet:
+            raise ModelError("datasheet scales convert a raw model to a ROS driver's input: they go with units 'ros'")
+        return phys, None
+    ros = ros_input(model, linear_cals(model), datasheet)
+    return ros_cals(phys, ros), ros
+
+
+def imu_dict(model: CalibrationModel, imu: dict[str, Any], cals: Mapping[str, LinearCal], ros: RosInput | None,
+             imu_fields: Mapping[str, Any] | None, order: tuple[str, ...]) -> dict[str, Any]:
+    """``{"imu0": ...}`` of a YAML export: the format's ``imu`` keys, then :func:`jaxcal_fields`, then the
+    caller's ``imu_fields`` (:func:`merge`), in ``order`` (:func:`ordered`)."""
+    return {"imu0": ordered(merge({**imu, **jaxcal_fields(model, cals, ros)}, imu_fields), order)}
+
+
+def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple[dict[str, Any], RosInput | None]],
+                model: CalibrationModel, options: ExportOptions, opencv: bool) -> Exported:
+    """A YAML export's file: ``build(model, noise, units, datasheet) -> (dict, RosInput | None)``, with the
+    header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
+    d, ros = build(model, options.noise, options.units, options.datasheet)
+    lost = not_carried(fmt, options.units)
+    return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
+
+
+def ros_notes(tool: str, ros: RosInput | None, not_carried: Sequence[str]) -> list[str]:
+    """The header lines of a YAML export saying what its input is and what ``tool`` does not get from it."""
+    lines = []
+    if ros is not None:
+        lines += [f"Input (jaxcal_units: ros): the samples a ROS driver publishes in sensor_msgs/Imu, "
+                  f"{ROS_UNIT['acc']} and {ROS_UNIT['gyr']}; the driver's conversion of the model's input:"]
+        lines += [f"  {s}: {ros.how[s]}" for s in IMU_SENSORS]
+        lines += ["The biases jaxcal_b_a, jaxcal_b_g are in those units (jaxcal_ros_per_model_unit_* x the model's bias)."]
+    return lines + [f"Not carried to {tool}:"] + [f"  - {n}" for n in not_carried]
 
 
 def merge(imu: dict[str, Any], extra: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -80,7 +152,7 @@ def _represent_str(dumper: yaml.SafeDumper, value: str) -> yaml.ScalarNode:
 _IndentedDumper.add_representer(str, _represent_str)
 
 
-def document_text(convention: str, d: Mapping[str, Any], opencv: bool) -> str:
+def document_text(convention: str, d: Mapping[str, Any], opencv: bool, notes: Sequence[str] = ()) -> str:
     """The YAML text of a YAML export's dict.
 
     A ``#`` comment header states the ``convention``; with ``opencv`` the file starts with
@@ -93,9 +165,12 @@ def document_text(convention: str, d: Mapping[str, Any], opencv: bool) -> str:
         convention: the format's convention text (several lines).
         d: the export's dict.
         opencv: write OpenCV's ``%YAML:1.0`` first line.
+        notes: more header lines after the convention (e.g. :func:`ros_notes`).
     """
     head = [f"# IMU calibration exported by jaxcal {__version__}.", "#"]
     head += [f"# {line}".rstrip() for line in convention.splitlines()]
+    if notes:
+        head += ["#"] + [f"# {line}".rstrip() for line in notes]
     missing = missing_noise_keys(d)
     if missing:
         head += ["#", f"# Missing IMU noise keys (Kalibr imu.yaml, SI units): {', '.join(missing)}.",
@@ -105,9 +180,10 @@ def document_text(convention: str, d: Mapping[str, Any], opencv: bool) -> str:
     return "\n".join(first + head) + "\n" + body
 
 
-def exported(convention: str, d: Mapping[str, Any], opencv: bool) -> Exported:
-    """A YAML export's file (:func:`document_text`) with the noise keys it lacks."""
-    return Exported(document_text(convention, d, opencv), tuple(missing_noise_keys(d)))
+def exported(convention: str, d: Mapping[str, Any], opencv: bool, notes: Sequence[str] = (),
+             not_carried: Sequence[str] = ()) -> Exported:
+    """A YAML export's file (:func:`document_text`) with the noise keys it lacks and what it does not carry."""
+    return Exported(document_text(convention, d, opencv, notes), tuple(missing_noise_keys(d)), tuple(not_carried))
 
 
 def parse_yaml(text: str) -> Any:
@@ -138,7 +214,8 @@ def imu0(doc: Any, where: str) -> Mapping[str, Any]:
 
 
 def yaml_bias_units(imu: Mapping[str, Any], where: str, notes: list[str]) -> tuple[dict, dict]:
-    """Raw bias (``jaxcal_b_a``/``_g``, zero when absent) and input units of a YAML export."""
+    """Bias (``jaxcal_b_a``/``_g``, zero when absent) in the file's input unit, and the model's input units
+    (``jaxcal_model_unit_*`` of a ``jaxcal_units: ros`` file, else ``jaxcal_input_unit_*``)."""
     bias, units = {}, {}
     for s, key in (("acc", "jaxcal_b_a"), ("gyr", "jaxcal_b_g")):
         if key in imu:
@@ -146,7 +223,7 @@ def yaml_bias_units(imu: Mapping[str, Any], where: str, notes: list[str]) -> tup
         else:
             bias[s] = np.zeros(3)
             notes.append(f"no {key}: {s} bias taken as 0 (the tool estimates it online)")
-        unit = imu.get(f"jaxcal_input_unit_{s}")
+        unit = imu.get(f"jaxcal_model_unit_{s}", imu.get(f"jaxcal_input_unit_{s}"))
         if unit in ("LSB", PHYS_UNIT[s]):
             units[s] = unit
         else:
@@ -155,3 +232,22 @@ def yaml_bias_units(imu: Mapping[str, Any], where: str, notes: list[str]) -> tup
     return bias, units
 
 
+def to_model_unit(fwd: Mapping[str, tuple[np.ndarray, np.ndarray]], imu: Mapping[str, Any],
+                  where: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Forward ``(S, b)`` on the file's input as forward ``(S, b)`` on the model's input unit.
+
+    A ``jaxcal_units: ros`` file's input is ``c * y`` (``c`` = ``jaxcal_ros_per_model_unit_*``), so
+    ``S_model = diag(1/c) S`` and ``b_model = b / c``; any other file's input is the model's own.
+
+    Raises:
+        ModelError: a ``ros`` file without a usable conversion (one line).
+    """
+    if imu.get("jaxcal_units") != "ros":
+        return dict(fwd)
+    out = {}
+    for s, (S, b) in fwd.items():
+        c = matrix(imu, f"jaxcal_ros_per_model_unit_{s}", (3,), where)
+        if np.any(c == 0):
+            raise ModelError(f"{where}: jaxcal_ros_per_model_unit_{s} has a zero")
+        out[s] = (S / c[:, None], b / c)
+    return out
