@@ -4,13 +4,15 @@ Pure functions on a :class:`~jaxcal.recording.Recording` (no file I/O; ``jaxcal.
 the files): the static stretch (given, or the longest interval :mod:`jaxcal.static` finds), each
 sensor in SI units (accelerometer m/s^2, gyroscope rad/s, from ``acc_unit``/``gyr_unit`` or the
 datasheet scales ``acc_lsb_per_g``/``gyr_lsb_per_rads``), its overlapping Allan deviation per axis
-with chi-square intervals (:mod:`jaxcal.allan`), the fitted white noise density N, bias instability
-B and random walk K with intervals, and the Kalibr / OpenVINS noise keys. :func:`allan_figure`
+with chi-square intervals (:mod:`jaxcal.allan`), the noise processes fitted jointly over all cluster
+times with a selected model and intervals (:mod:`jaxcal.gmwm`: white noise density N, random walk K,
+and bias instability B, quantisation, rate ramp, Gauss-Markov where selected), the slope-line
+reading (:func:`jaxcal.allan.fit_noise`) as a second opinion, and the Kalibr / OpenVINS noise keys. :func:`allan_figure`
 returns a matplotlib ``Figure`` (built without pyplot: no global state).
 
 Combining axes: Kalibr and OpenVINS take one number per sensor; each key holds the largest value
 over the three axes (:func:`jaxcal.formats.noise_yaml.kalibr_imu_yaml`), the conservative choice for a filter.
-Where the stretch is too short for the random-walk line to show (``K`` NaN on an axis), the
+Where the model selected has no random walk (``K`` NaN on an axis: a stretch too short to see it), the
 number written is an upper bound instead: ``min over tau of adev_hi(tau) sqrt(3 / tau)`` (every
 Allan variance is at least ``K^2 tau / 3``; ``adev_hi`` is the upper end of the ADEV interval), and
 the report says so (``K_is_bound``).
@@ -34,6 +36,7 @@ from jaxcal.allan import (
 from jaxcal.arrays import Array
 from jaxcal.constants import G0
 from jaxcal.formats.noise_yaml import kalibr_imu_yaml, kalibr_yaml_text, openvins_imu_chain, openvins_yaml_text
+from jaxcal.gmwm import CANDIDATES, GmwmConfig, advice_lines, fit_json, gmwm_axes, noise_params, record_advice
 from jaxcal.recording import Recording, RecordingError
 
 __all__ = [
@@ -81,8 +84,11 @@ class SensorNoise(NamedTuple):
         allan: :func:`jaxcal.allan.overlapping_adev` result.
         adev_lo: (T, C) lower ends of the ADEV intervals (:func:`adev_ci`).
         adev_hi: (T, C) upper ends.
-        params: :func:`jaxcal.allan.fit_noise` (N, B, K with intervals).
+        params: N, B, K with intervals from the GMWM fits (:func:`jaxcal.gmwm.noise_params`; NaN where
+            the selected model lacks the process): the values the YAML keys are made from.
         K_bound: (C,) upper bound on K where ``params.K`` is NaN (module docstring), else ``params.K``.
+        slope: the slope-line reading, :func:`jaxcal.allan.fit_noise` (a second opinion).
+        gmwm: per axis, :class:`jaxcal.gmwm.GmwmFit` (model selected, every parameter with its interval).
     """
 
     allan: AllanResult
@@ -90,6 +96,8 @@ class SensorNoise(NamedTuple):
     adev_hi: np.ndarray
     params: NoiseParams
     K_bound: np.ndarray
+    slope: NoiseParams
+    gmwm: tuple
 
 
 class NoiseReport(NamedTuple):
@@ -108,6 +116,7 @@ class NoiseReport(NamedTuple):
         kalibr: Kalibr ``imu.yaml`` dict (both sensors analysed), else None.
         openvins: OpenVINS ``kalibr_imu_chain.yaml`` dict, else None.
         warnings: one-line notes (uneven time steps, short stretch, K bounds).
+        advice: per sensor, per axis, :func:`jaxcal.gmwm.record_advice` (how long to record).
     """
 
     start: int
@@ -122,6 +131,7 @@ class NoiseReport(NamedTuple):
     kalibr: dict | None
     openvins: dict | None
     warnings: list
+    advice: dict
 
 
 def sensor_si(rec: Recording, sensor: str) -> tuple[np.ndarray, str]:
@@ -251,9 +261,10 @@ def adev_ci(res: AllanResult, level: float = 0.95) -> tuple[Float[np.ndarray, "T
 def sensor_noise(x: Float[Array, "N C"], fs: float, taus_per_decade: int = 10, level: float = 0.95) -> SensorNoise:
     """Allan analysis of one sensor's static samples (any unit; SI for the Kalibr keys).
 
-    The ADEV is computed up to ``m = N // 2`` (plotted, written), but N, B, K are fitted on the
-    cluster sizes ``m <= N // 4`` only: beyond, a point holds fewer than ``N / 2`` overlapping
-    terms (EDF about 1 to 2), and the minimum picked for B would mostly be the luck of one term.
+    The ADEV is computed up to ``m = N // 2`` (plotted, written); the GMWM (:func:`jaxcal.gmwm.gmwm_axes`,
+    dyadic cluster sizes) and the slope-line reading use ``m <= N // 4`` only: beyond, a point holds
+    fewer than ``N / 2`` overlapping terms (EDF about 1 to 2). An axis with N below the quantisation floor
+    ``q / sqrt(12 fs)`` (a filter's roll-off read as QN or a short GM) is refitted without QN and GM.
 
     Args:
         x: (N, C) rate samples.
@@ -265,9 +276,14 @@ def sensor_noise(x: Float[Array, "N C"], fs: float, taus_per_decade: int = 10, l
     lo, hi = adev_ci(res, level)
     keep = res.m <= max(1, (res.n_phase - 1) // 4)  # fit where EDF >= ~2 (the last taus hold one or two terms)
     sub = AllanResult(res.taus[keep], res.m[keep], res.adev[keep], res.n_terms[keep], res.n_phase)
-    p = fit_noise(sub, level=level)
+    fits = gmwm_axes(x, fs, GmwmConfig(level=level))
+    floor = quantisation_step(x) / np.sqrt(12.0 * fs)
+    if any(f.get("N")[0] < q for f, q in zip(fits, floor)):  # short taus read as QN or GM: refit without them
+        no_qn = gmwm_axes(x, fs, GmwmConfig(candidates=tuple(c for c in CANDIDATES if not {"QN", "GM"} & set(c)), level=level))
+        fits = tuple(g if f.get("N")[0] < q else f for f, g, q in zip(fits, no_qn, floor))
+    p = noise_params(fits)
     bound = np.min(hi[keep] * np.sqrt(3.0 / sub.taus)[:, None], axis=0)
-    return SensorNoise(res, lo, hi, p, np.where(np.isfinite(p.K), p.K, bound))
+    return SensorNoise(res, lo, hi, p, np.where(np.isfinite(p.K), p.K, bound), fit_noise(sub, level=level), fits)
 
 
 def quantisation_step(x: Float[Array, "N C"]) -> Float[np.ndarray, " C"]:
@@ -331,6 +347,7 @@ def noise_report(
     topic: str = "/imu0",
     taus_per_decade: int = 10,
     level: float = 0.95,
+    target: float = 0.1,
 ) -> NoiseReport:
     """Noise parameters of a recording's static stretch (the ``jaxcal noise`` report).
 
@@ -345,6 +362,7 @@ def noise_report(
         topic: Kalibr ``rostopic``.
         taus_per_decade: cluster times per decade.
         level: confidence level of the intervals.
+        target: relative interval half-width whose record length the report predicts.
     """
     for s in sensors:
         x = sensor_si(rec, s)[0]  # refuse missing scale metadata before any work
@@ -391,8 +409,8 @@ def noise_report(
     dur = float(t[b - 1] - t[a])
     for s, r in res.items():
         if not np.all(np.isfinite(r.params.K)):
-            warnings.append(f"{s}: the {dur:.0f} s stretch is too short to see the random walk on some axes; "
-                            "the K written is an upper bound (min over tau of adev_hi sqrt(3/tau))")
+            warnings.append(f"{s}: the model selected on the {dur:.0f} s stretch has no random walk on some axes (too short to "
+                            "see it); the K written is an upper bound (min over tau of adev_hi sqrt(3/tau))")
     kal = ov = None
     if "acc" in res and "gyr" in res:
         pa = res["acc"].params._replace(K=res["acc"].K_bound)
@@ -400,11 +418,18 @@ def noise_report(
         kal = kalibr_imu_yaml(pa, pg, fs, topic)
         ov = openvins_imu_chain(pa, pg, fs, topic)
     conv = {s: sensor_si(rec, s)[1] for s in sensors}
-    return NoiseReport(a, b, float(t[a]), float(t[b - 1]), how, fs, spread, res, conv, kal, ov, warnings)
+    advice = {s: [record_advice(f, target) for f in r.gmwm] for s, r in res.items()}
+    return NoiseReport(a, b, float(t[a]), float(t[b - 1]), how, fs, spread, res, conv, kal, ov, warnings, advice)
 
 
 def _floats(a) -> list:
     return [None if not np.isfinite(v) else float(v) for v in np.asarray(a, np.float64).ravel()]
+
+
+def _slope_json(p: NoiseParams, j: int) -> dict[str, Any]:
+    return {k: _floats(getattr(p, k)[j])[0] for k in ("N", "B", "K")} | {
+        f"{k}_interval": _floats([getattr(p, k + "_lo")[j], getattr(p, k + "_hi")[j]]) for k in ("N", "B", "K")} | {
+        f"tau_{k}_s": _floats(getattr(p, "tau_" + k)[j])[0] for k in ("N", "B", "K")}
 
 
 def report_json(rep: NoiseReport, source: str = "") -> dict[str, Any]:
@@ -421,8 +446,11 @@ def report_json(rep: NoiseReport, source: str = "") -> dict[str, Any]:
         "fs_hz": rep.fs,
         "dt_max_relative_deviation": rep.dt_spread,
         "level": next(iter(rep.sensors.values())).params.level,
-        "model": "AVAR(tau) = N^2/tau + (2 ln2/pi) B^2 + K^2 tau/3 (IEEE Std 952); N read at tau ~ 1 s, B = min ADEV / 0.664, "
-                 "K on the +1/2 line (jaxcal.allan.fit_noise)",
+        "model": "AVAR(tau) = N^2/tau + 3 Q^2/tau^2 + (2 ln2/pi) B^2 + K^2 tau/3 + R^2 tau^2/2 + Gauss-Markov (IEEE Std 952); "
+                 "the processes selected by WVIC and fitted jointly over all dyadic cluster times (GMWM, jaxcal.gmwm); B, K null "
+                 "where the model selected lacks them",
+        "estimator": "gmwm",
+        "second_opinion": "slope_line: N read at tau ~ 1 s, B = min ADEV / 0.664, K on the +1/2 line (jaxcal.allan.fit_noise)",
         "combine_axes": "imu.yaml / openvins_noise.yaml hold the largest value over the three axes (conservative)",
         "sensors": {},
         "imu_yaml": rep.kalibr,
@@ -439,6 +467,7 @@ def report_json(rep: NoiseReport, source: str = "") -> dict[str, Any]:
                 "K": _floats(p.K[j])[0], "K_interval": _floats([p.K_lo[j], p.K_hi[j]]), "tau_K_s": _floats(p.tau_K[j])[0],
                 "K_upper_bound": _floats(r.K_bound[j])[0], "K_is_bound": bool(not np.isfinite(p.K[j])),
                 "adev": _floats(r.allan.adev[:, j]), "adev_lo": _floats(r.adev_lo[:, j]), "adev_hi": _floats(r.adev_hi[:, j]),
+                "gmwm": fit_json(r.gmwm[j], rep.advice[s][j]), "slope_line": _slope_json(r.slope, j),
             }
         out["sensors"][s] = {"units": SI_UNITS[s], "conversion": rep.conversion[s], "taus_s": _floats(r.allan.taus),
                              "n_terms": [int(v) for v in r.allan.n_terms], "axes": axes}
@@ -455,7 +484,8 @@ def summary_lines(rep: NoiseReport) -> list[str]:
              f"at {rep.fs:.4g} Hz): {rep.how}"]
     for s, r in rep.sensors.items():
         p = r.params
-        n, b, k = float(np.max(p.N)), float(np.max(p.B)), float(np.max(r.K_bound))
+        fitted_b = bool(np.isfinite(p.B).any())  # else the slope line's B, labelled
+        n, b, k = float(np.max(p.N)), float(np.nanmax(p.B) if fitted_b else np.max(r.slope.B)), float(np.max(r.K_bound))
         kb = "<= " if not np.all(np.isfinite(p.K)) else ""
         u = SI_UNITS[s]
         if s == "gyr":
@@ -463,7 +493,10 @@ def summary_lines(rep: NoiseReport) -> list[str]:
                      f"{kb}{np.degrees(k) * 3600 * 60:.3g} deg/h/sqrt(h)")
         else:
             usual = f"{n / G0 * 1e6:.3g} ug/sqrt(Hz), {b / G0 * 1e6:.3g} ug, {kb}{k / G0 * 1e6:.3g} ug/s/sqrt(Hz)"
-        lines.append(f"{s}: N {n:.3g} {u['N']}, B {b:.3g} {u['B']}, K {kb}{k:.3g} {u['K']} ({usual}; largest over axes)")
+        models = ", ".join(sorted({"+".join(f.model) for f in r.gmwm}))
+        lines.append(f"{s}: N {n:.3g} {u['N']}, B{'' if fitted_b else ' (slope line)'} {b:.3g} {u['B']}, K {kb}{k:.3g} {u['K']} "
+                     f"({usual}; largest over axes; model {models})")
+        lines += advice_lines(s, rep.advice[s])
     return lines + [f"warning: {w}" for w in rep.warnings]
 
 
@@ -484,7 +517,7 @@ def gauss_markov_adev(taus: Float[Array, " T"], sigma: float, tau_b: float) -> F
 
 
 def allan_figure(rep: NoiseReport, title: str = ""):
-    """Log-log Allan deviation per sensor and axis with interval bars and the fitted -1/2, 0, +1/2 lines.
+    """Log-log Allan deviation per sensor and axis with interval bars, the GMWM model and its N and K lines.
 
     Returns a ``matplotlib.figure.Figure`` (no pyplot; save it with ``fig.savefig``).
 
@@ -507,7 +540,8 @@ def allan_figure(rep: NoiseReport, title: str = ""):
             ax.errorbar(taus, y, yerr=[y - r.adev_lo[:, j], r.adev_hi[:, j] - y], fmt="o-", ms=2.5, lw=0.8, elinewidth=0.6,
                         capsize=1.5, color=c, label=f"{_AXES[j] if j < 3 else j}")
             ax.plot(taus, p.N[j] / np.sqrt(taus), "--", color=c, lw=0.7, alpha=0.8)
-            ax.axhline(0.664 * p.B[j], color=c, ls=":", lw=0.7, alpha=0.8)
+            g = r.gmwm[j]
+            ax.plot(g.m / g.fs, np.sqrt(g.avar_model), ":", color=c, lw=1.0)
             kk = r.K_bound[j]
             ax.plot(taus, kk * np.sqrt(taus / 3.0), ls="-." if np.isfinite(p.K[j]) else (0, (1, 3)), color=c, lw=0.7, alpha=0.8)
         lo, hi = np.nanmin(r.adev_lo), np.nanmax(r.adev_hi)
@@ -516,7 +550,7 @@ def allan_figure(rep: NoiseReport, title: str = ""):
         ax.set_ylim(lo / 2.0, hi * 2.0)
         ax.set_xlabel("cluster time tau [s]")
         ax.set_ylabel(f"Allan deviation [{SI_UNITS[s]['signal']}]")
-        ax.set_title(f"{s}: N (--), 0.664 B (:), K (-.; dotted = upper bound)", fontsize=9)
+        ax.set_title(f"{s}: GMWM model (:), its N (--) and K (-.; dotted = upper bound)", fontsize=9)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
         ax.legend(fontsize=8, loc="lower left")  # loc="best" warns (a stderr line) when placing it is slow
     if title:

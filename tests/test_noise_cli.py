@@ -154,3 +154,21 @@ def test_gauss_markov_adev_closed_form_and_ci():
         assert np.all((lo[:, 0] <= want) & (want <= hi[:, 0]))
     peak = gauss_markov_adev(np.logspace(0, 3, 2000), 1.0, 20.0).max()
     assert peak == pytest.approx(0.618, abs=2e-3)  # the textbook peak, about 0.618 sigma at 1.89 tau_b (here 0.6174)
+
+
+def test_noise_json_gmwm_beside_the_slope_line(noise_out):
+    """The GMWM model, its record-length advice and the slope line's second opinion are in noise.json; the yaml
+    keys are the GMWM's numbers (largest over the axes)."""
+    rep = json.loads((noise_out / "out" / "noise.json").read_text())
+    y = yaml.safe_load((noise_out / "out" / "imu.yaml").read_text())
+    assert rep["estimator"] == "gmwm"
+    for s, key in (("acc", "accelerometer_noise_density"), ("gyr", "gyroscope_noise_density")):
+        axes = rep["sensors"][s]["axes"].values()
+        assert y[key] == pytest.approx(max(ax["gmwm"]["parameters"]["N"]["value"] for ax in axes), rel=1e-12)
+        for ax in axes:
+            g = ax["gmwm"]
+            assert g["model"] == "WN+RW" and ax["N"] == g["parameters"]["N"]["value"]  # the simulated processes
+            assert ax["slope_line"]["N"] == pytest.approx(ax["N"], rel=0.05) and ax["slope_line"]["tau_N_s"] == pytest.approx(1.0, rel=0.1)
+            rl = g["record_length"]
+            assert rl["target_halfwidth"] == 0.1 and rl["halfwidth"]["K"] > 0.1  # 4000 s is too short for +-10 % on K
+            assert rl["seconds_for_target"]["K"] > 4000.0 and rl["seconds_for_target"]["N"] < 4000.0

@@ -2,12 +2,13 @@
 
 ::
 
-    jaxcal noise RECORDING --out DIR [--sensors acc,gyr] [--start S --end S] [--rostopic T] [--taus N]
+    jaxcal noise RECORDING --out DIR [--sensors acc,gyr] [--start S --end S] [--rostopic T] [--taus N] [--target-width PCT]
 
-Writes ``DIR/noise.json`` (per sensor and axis: taus, ADEV with intervals, N/B/K with intervals, SI
-units, the stretch used), ``DIR/imu.yaml`` (Kalibr), ``DIR/openvins_noise.yaml`` (OpenVINS
-``kalibr_imu_chain.yaml`` keys) and ``DIR/allan.png``; the maths is :mod:`jaxcal.noise` and
-:mod:`jaxcal.allan`. The YAML files need both sensors.
+Writes ``DIR/noise.json`` (per sensor and axis: taus, ADEV with intervals, N/B/K with intervals from
+the GMWM, its model and how long to record, the slope-line reading as a second opinion, SI units, the
+stretch used), ``DIR/imu.yaml`` (Kalibr), ``DIR/openvins_noise.yaml`` (OpenVINS
+``kalibr_imu_chain.yaml`` keys) and ``DIR/allan.png``; the maths is :mod:`jaxcal.noise`,
+:mod:`jaxcal.gmwm` and :mod:`jaxcal.allan`. The YAML files need both sensors.
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ def _add_noise(p: argparse.ArgumentParser) -> None:
                    help="end of the static stretch (s); default: the end of the recording when --start is given")
     p.add_argument("--rostopic", default="/imu0", metavar="TOPIC", help="Kalibr's rostopic key (default /imu0)")
     p.add_argument("--taus", type=_count(2, 100), default=10, metavar="N", help="cluster times per decade (default 10)")
+    p.add_argument("--target-width", type=_real(0.1, 1000.0), default=10.0, metavar="PCT",
+                   help="interval half-width (%%) whose record length the report predicts (default 10: +-10 %%)")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
 
 
@@ -56,7 +59,7 @@ def _run_noise(args: argparse.Namespace) -> int:
 
     rec = load_recording(args.recording)
     t0 = time.perf_counter()
-    rep = nz.noise_report(rec, args.sensors, args.start, args.end, args.rostopic, args.taus)
+    rep = nz.noise_report(rec, args.sensors, args.start, args.end, args.rostopic, args.taus, target=args.target_width / 100.0)
     with _output_dir(args.out) as d:
         _write_text(d / "noise.json", json.dumps(nz.report_json(rep, str(args.recording)), indent=1, allow_nan=False) + "\n")
         if rep.kalibr is not None:
@@ -86,8 +89,10 @@ register_command(
         _add_noise,
         _checked_run,
         "Compute the overlapping Allan deviation of each axis over a static stretch of RECORDING (--start/--end, or "
-        "the longest static interval found), fit white noise density N, bias instability B and random walk K with "
-        "95 % intervals, and write DIR/noise.json, DIR/imu.yaml (Kalibr), DIR/openvins_noise.yaml and DIR/allan.png. "
+        "the longest static interval found), select and fit the noise processes jointly over all cluster times (GMWM: "
+        "white noise density N, random walk K, and quantisation, bias instability, rate ramp or a Gauss-Markov term where "
+        "they show) with 95 % intervals and the record length a --target-width would need (the slope-line reading kept "
+        "as a second opinion), and write DIR/noise.json, DIR/imu.yaml (Kalibr), DIR/openvins_noise.yaml and DIR/allan.png. "
         "All numbers in SI units; the YAML values are the largest over the three axes, the sensor's own values "
         "(no inflation).",
     ),
