@@ -24,8 +24,8 @@ import time
 from collections.abc import Mapping
 
 from jaxcal.diagnose.core import diagnose_banded, diagnose_prepared, prepare
-from jaxcal.diagnose.noref import NorefConfig, carry_check, diagnose_noref, has_reference, translation_warning
-from jaxcal.diagnose.report import build_report, build_report_banded, figures, figures_banded, report_markdown, write_report
+from jaxcal.diagnose.noref import NorefConfig, diagnose_noref, has_reference, noref_report
+from jaxcal.diagnose.report import build_report_banded, figures, figures_banded, report_markdown, write_report
 from jaxcal.diagnose.select import SelectConfig
 from jaxcal.recording import Recording
 
@@ -101,39 +101,4 @@ def diagnose_recording(
         rep["_figures"] = figs
     if keep_fit:
         rep["_fit"] = (preps, results)
-    return rep
-
-
-def noref_report(prep, results: dict, ref, kind: str, runtime_s: float, noref: NorefConfig = NorefConfig()) -> dict:
-    """The ``report.json`` dict of a reference-free diagnosis (:func:`jaxcal.diagnose.noref.diagnose_noref`):
-    :func:`~jaxcal.diagnose.report.build_report` plus the optional fields ``"reference": "none"``
-    and ``"self_reference"`` (starting calibration, rests, gravity carried between rests), and the
-    translational-acceleration warning where the accelerometer's motion residual asks for one.
-
-    Args:
-        prep: the prepared recording (:func:`jaxcal.diagnose.noref.prepare_noref`).
-        results: ``{sensor: SensorResult}``.
-        ref: the :class:`~jaxcal.diagnose.noref.SelfReference`.
-        kind: baseline, ``"diag"`` or ``"affine"``.
-        runtime_s: wall time to record (s).
-        noref: the settings used.
-    """
-    import numpy as np
-
-    rep = build_report(prep, results, kind, runtime_s)
-    rep["reference"] = "none"
-    carry = carry_check(ref, prep.t)
-    rep["self_reference"] = {
-        "calibration_from": ref.source, "n_rests": int(np.count_nonzero(np.diff(np.concatenate([[0], ref.rest.astype(int)])) == 1)),
-        "rest_fraction": float(ref.rest.mean()), "gravity_sigma_s": noref.gravity_sigma_s, "fold_s": noref.fold_s,
-        "n_folds": noref.n_blocks, "carried_gravity_between_rests_deg": carry,
-        "acc_cal": {"A": np.asarray(ref.acc_cal.A).tolist(), "b": np.asarray(ref.acc_cal.b).tolist()},
-        "gyr_cal": {"A": np.asarray(ref.gyr_cal.A).tolist(), "b": np.asarray(ref.gyr_cal.b).tolist()},
-        "residual": "acc: measured specific force - gyro-carried gravity (1 g); gyr: output at rest - 0",
-    }
-    if "acc" in results:
-        w = translation_warning(prep, results["acc"], ref.rest)
-        if w is not None:
-            rep["warnings"].append(w)
-            rep["self_reference"]["translation"] = True
     return rep

@@ -42,6 +42,7 @@ __all__ = [
     "UNITS",
     "PLAUSIBLE",
     "PLAUSIBLE_RANGE",
+    "EXCITE",
     "implausible",
     "SATURATION",
     "EFFECT_NAMES",
@@ -147,6 +148,18 @@ PLAUSIBLE_RANGE = {
     ("temperature_scale", "gyr"): 0.01,  # 1/degC
     ("bias_drift", "acc"): 1e-3,  # g/s
     ("bias_drift", "gyr"): 1e-3,  # (rad/s)/s
+}
+
+# Motion/conditions that excite each effect (used in warnings).
+EXCITE = {
+    "lever_arm": "angular acceleration and rates about several axes (a constant rate makes a lever arm look like a bias)",
+    "g_sensitivity": "orientations that put gravity along each axis",
+    "misalignment": "inputs on every axis",
+    "scale_nonlinearity": "large inputs of both signs on every axis",
+    "time_offset": "changing inputs (angular acceleration); with none a time offset is unobservable",
+    "temperature_bias": "a temperature change that is not monotonic in time (heat and cool)",
+    "temperature_scale": "a temperature change while the inputs are large",
+    "bias_drift": "a longer recording",
 }
 
 
