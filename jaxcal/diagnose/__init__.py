@@ -1,21 +1,24 @@
 """``jaxcal diagnose``: find the physics a sensor model left out, name it, model it, prove the fit.
 
-Pipeline (one sensor at a time, CONVENTIONS.md "Discrepancy vocabulary"):
+Pipeline (CONVENTIONS.md "Discrepancy vocabulary"; every stage a pure function handing a typed
+result to the next):
 
-1. :mod:`~jaxcal.diagnose.kinematics` / :func:`~jaxcal.diagnose.core.prepare`: reference motion
-   (given or derived from a pose), physical outputs, train / held-out time blocks.
-2. Baseline fit (``diag``: thesis eq. 4.6, or ``affine``: eq. 2.3); :mod:`~jaxcal.diagnose.locate`
-   breaks its residual down by axis, time, motion regime, temperature and frequency band.
-3. :mod:`~jaxcal.diagnose.select`: coarse time-offset search, regressors of every vocabulary
-   effect (:mod:`~jaxcal.diagnose.effects`) by JAX autodiff, AR-prewhitened chi-square tests,
-   forward selection gated by held-out improvement, minimum detectable sizes, confounding and
-   excitation warnings.
-4. :mod:`~jaxcal.diagnose.refit`: joint optimistix refit of baseline + named effects, with
-   standard errors; :mod:`~jaxcal.diagnose.report`: ``report.json`` dict, ``report.md``, figures.
-
-Without a reference motion, :mod:`~jaxcal.diagnose.noref` chooses the residual instead (the
-accelerometer against the gravity the gyroscope carries, the gyroscope at rest) and steps 2-4 run
-unchanged (``"reference": "none"`` in the report).
+1. :func:`~jaxcal.diagnose.prepare.prepare`: reference motion (given or derived from a pose),
+   physical outputs, train / held-out time blocks -> :class:`~jaxcal.diagnose.prepare.Prepared`.
+   Without a reference motion, :func:`~jaxcal.diagnose.noref.prepare_noref` builds the same
+   :class:`~jaxcal.diagnose.prepare.Prepared` from the IMU itself (the accelerometer against the
+   gravity the gyroscope carries, the gyroscope at rest): a mode is a choice of residual
+   (:class:`~jaxcal.diagnose.core.Mode`), and steps 2-5 run unchanged (``"reference": "none"``).
+2. :mod:`~jaxcal.diagnose.offset`: coarse time-offset search; baseline fit (``diag``: thesis
+   eq. 4.6, or ``affine``: eq. 2.3) and regressors of every vocabulary effect
+   (:mod:`~jaxcal.diagnose.vocabulary`, one record per effect) by JAX autodiff.
+3. :mod:`~jaxcal.diagnose.stages` / :mod:`~jaxcal.diagnose.select`: AR-prewhitened chi-square
+   tests, forward selection gated by held-out improvement, minimum detectable sizes, confounding
+   and excitation warnings; :mod:`~jaxcal.diagnose.locate` says where a residual lives.
+4. The promise (every named effect lowers the printed held-out rms and lies in its plausible
+   range) and :mod:`~jaxcal.diagnose.refit`: joint optimistix refit of baseline + named effects,
+   with standard errors.
+5. :mod:`~jaxcal.diagnose.report`: ``report.json`` dict, ``report.md``, figures.
 """
 
 from __future__ import annotations
