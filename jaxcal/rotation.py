@@ -28,6 +28,7 @@ __all__ = [
     "rotation_from_rate",
     "quat_from_matrix",
     "matrix_from_quat",
+    "quat_mul",
     "slerp_pairs",
     "log_so3",
     "compose",
@@ -128,6 +129,20 @@ def matrix_from_quat(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
         ],
         -2,
     )
+
+
+def quat_mul(a: Float[Array, "... 4"], b: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
+    """Hamilton product ``a ⊗ b`` of ``[w, x, y, z]`` quaternions (broadcasting over leading axes).
+
+    Args:
+        a: (..., 4) left factor, ``[w, x, y, z]``.
+        b: (..., 4) right factor, ``[w, x, y, z]``.
+    """
+    aw, av = a[..., :1], a[..., 1:]
+    bw, bv = b[..., :1], b[..., 1:]
+    w = aw * bw - jnp.sum(av * bv, -1, keepdims=True)
+    v = aw * bv + bw * av + jnp.cross(av, bv)
+    return jnp.concatenate([w, v], -1)
 
 
 SLERP_SMALL_SIN = 1e-9

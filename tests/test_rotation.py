@@ -168,3 +168,14 @@ def test_slerp_pairs_follows_the_rotation_about_the_axis():
         np.testing.assert_allclose(rot.slerp_pairs(q0, -q1, u), want, atol=1e-15)
     q = np.tile(np.array([0.5, 0.5, -0.5, 0.5]), (u.size, 1))
     np.testing.assert_array_equal(rot.slerp_pairs(q, q, u), q)
+
+
+def test_quaternion_product_is_the_matrix_product(x64):
+    """``R(a ⊗ b) = R(a) R(b)`` (Hamilton, scalar first), for random unit quaternions."""
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((2, 50, 4))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    lhs = np.asarray(rot.matrix_from_quat(rot.quat_mul(jnp.asarray(a), jnp.asarray(b))))
+    rhs = np.asarray(rot.matrix_from_quat(jnp.asarray(a))) @ np.asarray(rot.matrix_from_quat(jnp.asarray(b)))
+    np.testing.assert_allclose(lhs, rhs, atol=1e-14)

@@ -1,21 +1,24 @@
 """``jaxcal diagnose``: find the physics a sensor model left out, name it, model it, prove the fit.
 
-Pipeline (one sensor at a time, CONVENTIONS.md "Discrepancy vocabulary"):
+Pipeline (CONVENTIONS.md "Discrepancy vocabulary"; every stage a pure function handing a typed
+result to the next):
 
-1. :mod:`~jaxcal.diagnose.kinematics` / :func:`~jaxcal.diagnose.core.prepare`: reference motion
-   (given or derived from a pose), physical outputs, train / held-out time blocks.
-2. Baseline fit (``diag``: thesis eq. 4.6, or ``affine``: eq. 2.3); :mod:`~jaxcal.diagnose.locate`
-   breaks its residual down by axis, time, motion regime, temperature and frequency band.
-3. :mod:`~jaxcal.diagnose.select`: coarse time-offset search, regressors of every vocabulary
-   effect (:mod:`~jaxcal.diagnose.effects`) by JAX autodiff, AR-prewhitened chi-square tests,
-   forward selection gated by held-out improvement, minimum detectable sizes, confounding and
-   excitation warnings.
-4. :mod:`~jaxcal.diagnose.refit`: joint optimistix refit of baseline + named effects, with
-   standard errors; :mod:`~jaxcal.diagnose.report`: ``report.json`` dict, ``report.md``, figures.
-
-Without a reference motion, :mod:`~jaxcal.diagnose.noref` chooses the residual instead (the
-accelerometer against the gravity the gyroscope carries, the gyroscope at rest) and steps 2-4 run
-unchanged (``"reference": "none"`` in the report).
+1. :func:`~jaxcal.diagnose.prepare.prepare`: reference motion (given or derived from a pose),
+   physical outputs, train / held-out time blocks -> :class:`~jaxcal.diagnose.prepare.Prepared`.
+   Without a reference motion, :func:`~jaxcal.diagnose.noref.prepare_noref` builds the same
+   :class:`~jaxcal.diagnose.prepare.Prepared` from the IMU itself (the accelerometer against the
+   gravity the gyroscope carries, the gyroscope at rest): a mode is a choice of residual
+   (:class:`~jaxcal.diagnose.core.Mode`), and steps 2-5 run unchanged (``"reference": "none"``).
+2. :mod:`~jaxcal.diagnose.offset`: coarse time-offset search; baseline fit (``diag``: thesis
+   eq. 4.6, or ``affine``: eq. 2.3) and regressors of every vocabulary effect
+   (:mod:`~jaxcal.diagnose.vocabulary`, one record per effect) by JAX autodiff.
+3. :mod:`~jaxcal.diagnose.stages` / :mod:`~jaxcal.diagnose.select`: AR-prewhitened chi-square
+   tests, forward selection gated by held-out improvement, minimum detectable sizes, confounding
+   and excitation warnings; :mod:`~jaxcal.diagnose.locate` says where a residual lives.
+4. The promise (every named effect lowers the printed held-out rms and lies in its plausible
+   range) and :mod:`~jaxcal.diagnose.refit`: joint optimistix refit of baseline + named effects,
+   with standard errors.
+5. :mod:`~jaxcal.diagnose.report`: ``report.json`` dict, ``report.md``, figures.
 """
 
 from __future__ import annotations
@@ -24,8 +27,8 @@ import time
 from collections.abc import Mapping
 
 from jaxcal.diagnose.core import diagnose_banded, diagnose_prepared, prepare
-from jaxcal.diagnose.noref import NorefConfig, carry_check, diagnose_noref, has_reference, translation_warning
-from jaxcal.diagnose.report import build_report, build_report_banded, figures, figures_banded, report_markdown, write_report
+from jaxcal.diagnose.noref import NorefConfig, diagnose_noref, has_reference, noref_report
+from jaxcal.diagnose.report import build_report_banded, figures, figures_banded, report_markdown, write_report
 from jaxcal.diagnose.select import SelectConfig
 from jaxcal.recording import Recording
 
@@ -101,39 +104,4 @@ def diagnose_recording(
         rep["_figures"] = figs
     if keep_fit:
         rep["_fit"] = (preps, results)
-    return rep
-
-
-def noref_report(prep, results: dict, ref, kind: str, runtime_s: float, noref: NorefConfig = NorefConfig()) -> dict:
-    """The ``report.json`` dict of a reference-free diagnosis (:func:`jaxcal.diagnose.noref.diagnose_noref`):
-    :func:`~jaxcal.diagnose.report.build_report` plus the optional fields ``"reference": "none"``
-    and ``"self_reference"`` (starting calibration, rests, gravity carried between rests), and the
-    translational-acceleration warning where the accelerometer's motion residual asks for one.
-
-    Args:
-        prep: the prepared recording (:func:`jaxcal.diagnose.noref.prepare_noref`).
-        results: ``{sensor: SensorResult}``.
-        ref: the :class:`~jaxcal.diagnose.noref.SelfReference`.
-        kind: baseline, ``"diag"`` or ``"affine"``.
-        runtime_s: wall time to record (s).
-        noref: the settings used.
-    """
-    import numpy as np
-
-    rep = build_report(prep, results, kind, runtime_s)
-    rep["reference"] = "none"
-    carry = carry_check(ref, prep.t)
-    rep["self_reference"] = {
-        "calibration_from": ref.source, "n_rests": int(np.count_nonzero(np.diff(np.concatenate([[0], ref.rest.astype(int)])) == 1)),
-        "rest_fraction": float(ref.rest.mean()), "gravity_sigma_s": noref.gravity_sigma_s, "fold_s": noref.fold_s,
-        "n_folds": noref.n_blocks, "carried_gravity_between_rests_deg": carry,
-        "acc_cal": {"A": np.asarray(ref.acc_cal.A).tolist(), "b": np.asarray(ref.acc_cal.b).tolist()},
-        "gyr_cal": {"A": np.asarray(ref.gyr_cal.A).tolist(), "b": np.asarray(ref.gyr_cal.b).tolist()},
-        "residual": "acc: measured specific force - gyro-carried gravity (1 g); gyr: output at rest - 0",
-    }
-    if "acc" in results:
-        w = translation_warning(prep, results["acc"], ref.rest)
-        if w is not None:
-            rep["warnings"].append(w)
-            rep["self_reference"]["translation"] = True
     return rep

@@ -20,8 +20,11 @@ and ``saturation`` clips the raw output to ``[-limit, +limit]`` LSB (handled on 
 here). ``T0`` is fixed to the recording's mean temperature and ``t_mid`` to its mid time; both
 only re-parametrise the baseline bias/scale. Effects of both sensors are separate candidates.
 
-Parameters of all smooth effects of one sensor live in one flat vector (``theta``); the
-:data:`LAYOUT` tables give each effect's slice, so code that fits a subset uses a 0/1 mask on the
+Each effect is one record of :mod:`jaxcal.diagnose.vocabulary` (its forward step, inverse,
+units, plausible range, the motion that excites it); the chain above is those records' ``forward``
+steps in the order of their ``stage``, and the tables here (``UNITS``, ``PLAUSIBLE_RANGE``,
+``LAYOUT``, ...) are derived from them. Parameters of all smooth effects of one sensor live in one
+flat vector (``theta``); the ``LAYOUT`` tables give each effect's slice, so code that fits a subset uses a 0/1 mask on the
 flat vector (one compiled function for every subset).
 """
 
@@ -35,19 +38,21 @@ import numpy as np
 from jaxtyping import Float
 
 from jaxcal.arrays import Array
-from jaxcal.constants import G0
+from jaxcal.constants import G0  # noqa: F401 - re-exported (E.G0), as before the records
+from jaxcal.diagnose import vocabulary as V
 
 __all__ = [
     "OFFDIAG",
-    "UNITS",
-    "PLAUSIBLE",
-    "PLAUSIBLE_RANGE",
+    "UNITS",  # noqa: F822 - derived on access (__getattr__)
+    "PLAUSIBLE",  # noqa: F822 - derived on access (__getattr__)
+    "PLAUSIBLE_RANGE",  # noqa: F822 - derived on access (__getattr__)
+    "EXCITE",  # noqa: F822 - derived on access (__getattr__)
     "implausible",
     "SATURATION",
-    "EFFECT_NAMES",
+    "EFFECT_NAMES",  # noqa: F822 - derived on access (__getattr__)
     "Slot",
-    "LAYOUT",
-    "N_THETA",
+    "LAYOUT",  # noqa: F822 - derived on access (__getattr__)
+    "N_THETA",  # noqa: F822 - derived on access (__getattr__)
     "slot",
     "effect_mask",
     "theta_from_params",
@@ -64,121 +69,58 @@ __all__ = [
     "regressors",
 ]
 
-# effect name -> (parameter name, shape) for the smooth effects of each sensor, in model order.
-_ACC_EFFECTS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
-    ("lever_arm", "r", (3,)),
-    ("time_offset", "tau", ()),
-    ("scale_nonlinearity", "k2", (3,)),
-    ("misalignment", "m", (6,)),
-    ("temperature_scale", "k", (3,)),
-    ("temperature_bias", "k", (3,)),
-    ("bias_drift", "d", (3,)),
-)
-_GYR_EFFECTS: tuple[tuple[str, str, tuple[int, ...]], ...] = (
-    ("g_sensitivity", "G", (9,)),
-    ("time_offset", "tau", ()),
-    ("scale_nonlinearity", "k2", (3,)),
-    ("misalignment", "m", (6,)),
-    ("temperature_scale", "k", (3,)),
-    ("temperature_bias", "k", (3,)),
-    ("bias_drift", "d", (3,)),
-)
+OFFDIAG = V.OFFDIAG  # off-diagonal (row, col) entries of the misalignment matrix, in parameter order
+SATURATION = "saturation"
+_DERIVED = ("UNITS", "PLAUSIBLE", "PLAUSIBLE_RANGE", "EXCITE", "EFFECT_NAMES", "LAYOUT", "N_THETA")
 
-# Off-diagonal (row, col) entries of the misalignment matrix, in parameter order.
-OFFDIAG = ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1))
 
-# Units of each effect's parameter, per sensor (for reports).
-UNITS = {
-    ("lever_arm", "acc"): "m",
-    ("g_sensitivity", "gyr"): "(rad/s)/g",
-    ("misalignment", "acc"): "rad",
-    ("misalignment", "gyr"): "rad",
-    ("scale_nonlinearity", "acc"): "1/g",
-    ("scale_nonlinearity", "gyr"): "1/(rad/s)",
-    ("time_offset", "acc"): "s",
-    ("time_offset", "gyr"): "s",
-    ("temperature_bias", "acc"): "g/degC",
-    ("temperature_bias", "gyr"): "(rad/s)/degC",
-    ("temperature_scale", "acc"): "1/degC",
-    ("temperature_scale", "gyr"): "1/degC",
-    ("bias_drift", "acc"): "g/s",
-    ("bias_drift", "gyr"): "(rad/s)/s",
-    ("saturation", "acc"): "LSB",
-    ("saturation", "gyr"): "LSB",
-}
+def __getattr__(name: str):
+    """The tables keyed by effect, derived from the records of :mod:`jaxcal.diagnose.vocabulary`
+    whenever they are read (so a registered effect is in them):
 
-# Sizes an engineer would call plausible for a MEMS IMU; a minimum detectable size above these
-# means the recording cannot reveal the effect (used only for "not excited" warnings).
-PLAUSIBLE = {
-    ("lever_arm", "acc"): 0.05,
-    ("g_sensitivity", "gyr"): 3e-3,
-    ("misalignment", "acc"): 0.01,
-    ("misalignment", "gyr"): 0.01,
-    ("scale_nonlinearity", "acc"): 0.01,
-    ("scale_nonlinearity", "gyr"): 0.01,
-    ("time_offset", "acc"): 0.01,
-    ("time_offset", "gyr"): 0.01,
-    ("temperature_bias", "acc"): 1e-3,
-    ("temperature_bias", "gyr"): 5e-4,
-    ("temperature_scale", "acc"): 5e-4,
-    ("temperature_scale", "gyr"): 5e-4,
-    ("bias_drift", "acc"): 1e-5,
-    ("bias_drift", "gyr"): 1e-5,
-}
-
-# The plausible range of each effect on a real MEMS IMU and rig: the largest |component| an
-# estimate may have and still be a name (CONVENTIONS.md "plausible range"). An estimate outside
-# it is not a physical effect of that size but a model that does not fit (a frame, clock or
-# reference problem, or a noise model the data contradict); ``diagnose`` then reports a
-# misspecification warning instead of naming it. Misalignment includes the frame rotation between
-# a mocap body and the sensor that a ``diag`` baseline leaves to it (10 deg = 0.17 rad).
-PLAUSIBLE_RANGE = {
-    ("lever_arm", "acc"): 1.0,  # m
-    ("g_sensitivity", "gyr"): 0.02,  # (rad/s)/g
-    ("misalignment", "acc"): 0.2,  # rad
-    ("misalignment", "gyr"): 0.2,  # rad
-    ("scale_nonlinearity", "acc"): 0.05,  # 1/g
-    ("scale_nonlinearity", "gyr"): 0.05,  # 1/(rad/s)
-    ("time_offset", "acc"): 2.0,  # s
-    ("time_offset", "gyr"): 2.0,  # s
-    ("temperature_bias", "acc"): 0.01,  # g/degC
-    ("temperature_bias", "gyr"): 0.01,  # (rad/s)/degC
-    ("temperature_scale", "acc"): 0.01,  # 1/degC
-    ("temperature_scale", "gyr"): 0.01,  # 1/degC
-    ("bias_drift", "acc"): 1e-3,  # g/s
-    ("bias_drift", "gyr"): 1e-3,  # (rad/s)/s
-}
+    * ``UNITS[(effect, sensor)]``: the parameter's unit;
+    * ``PLAUSIBLE[(effect, sensor)]``: a size an engineer would call plausible for a MEMS IMU; a
+      minimum detectable size above it means the recording cannot reveal the effect ("not excited");
+    * ``PLAUSIBLE_RANGE[(effect, sensor)]``: the largest |component| an estimate may have and still
+      be a name (CONVENTIONS.md "plausible range"); beyond it ``diagnose`` reports a
+      misspecification warning instead;
+    * ``EXCITE[effect]``: the motion or conditions that excite a smooth effect;
+    * ``EFFECT_NAMES``: the vocabulary's names; ``LAYOUT[sensor]``: the :class:`Slot` of each smooth
+      effect in the sensor's flat ``theta``, in the order of the forward chain; ``N_THETA[sensor]``.
+    """
+    if name not in _DERIVED:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    reg = V.REGISTRY.values()
+    if name == "UNITS":
+        return {(e.name, s): e.units[s] for e in reg for s in e.sensors}
+    if name == "PLAUSIBLE":
+        return {(e.name, s): v for e in reg for s, v in e.detectable.items()}
+    if name == "PLAUSIBLE_RANGE":
+        return {(e.name, s): v for e in reg for s, v in e.plausible_range.items()}
+    if name == "EXCITE":
+        return {e.name: e.excites for e in reg if e.stage is not None}
+    if name == "EFFECT_NAMES":
+        return tuple(e.name for e in reg)
+    if name == "LAYOUT":
+        return {s: _layout(s) for s in ("acc", "gyr")}
+    return {s: _n_theta(s) for s in ("acc", "gyr")}
 
 
 def implausible(sensor: str, name: str, theta) -> float:
-    """Largest |component| of effect ``name`` in ``theta`` over its :data:`PLAUSIBLE_RANGE`
-    (> 1: outside the range; 0 for effects without a range).
+    """Largest |component| of effect ``name`` in ``theta`` over its plausible range
+    (``PLAUSIBLE_RANGE``; > 1: outside the range; 0 for effects without a range).
 
     Args:
         sensor: ``"acc"`` or ``"gyr"``.
         name: effect name.
         theta: (P,) flat effect parameters of ``sensor``.
     """
-    lim = PLAUSIBLE_RANGE.get((name, sensor))
+    lim = V.get(name).plausible_range.get(sensor) if name in V.REGISTRY else None
     if lim is None:
         return 0.0
     sl = slot(sensor, name)
     v = np.asarray(theta, np.float64)[sl.start : sl.start + sl.size]
     return float(np.max(np.abs(v)) / lim)
-
-
-SATURATION = "saturation"
-EFFECT_NAMES = (
-    "lever_arm",
-    "g_sensitivity",
-    "misalignment",
-    "scale_nonlinearity",
-    "time_offset",
-    "temperature_bias",
-    "temperature_scale",
-    "bias_drift",
-    "saturation",
-)
 
 
 class Slot(NamedTuple):
@@ -191,17 +133,17 @@ class Slot(NamedTuple):
     size: int
 
 
-def _layout(table) -> tuple[Slot, ...]:
+def _layout(sensor: str) -> tuple[Slot, ...]:
+    """The :class:`Slot` of every smooth effect of ``sensor``, in the order of the forward chain."""
     out, i = [], 0
-    for name, param, shape in table:
-        size = int(np.prod(shape)) if shape else 1
-        out.append(Slot(name, param, shape, i, size))
-        i += size
+    for e in V.smooth(sensor):
+        out.append(Slot(e.name, e.param, () if e.shape == () else (e.size,), i, e.size))
+        i += e.size
     return tuple(out)
 
 
-LAYOUT: dict[str, tuple[Slot, ...]] = {"acc": _layout(_ACC_EFFECTS), "gyr": _layout(_GYR_EFFECTS)}
-N_THETA = {s: sum(sl.size for sl in LAYOUT[s]) for s in LAYOUT}
+def _n_theta(sensor: str) -> int:
+    return sum(e.size for e in V.smooth(sensor))
 
 
 def slot(sensor: str, name: str) -> Slot:
@@ -211,7 +153,7 @@ def slot(sensor: str, name: str) -> Slot:
         sensor: ``"acc"`` or ``"gyr"``.
         name: effect name.
     """
-    for sl in LAYOUT[sensor]:
+    for sl in _layout(sensor):
         if sl.name == name:
             return sl
     raise KeyError(f"effect {name!r} does not apply to sensor {sensor!r}")
@@ -224,7 +166,7 @@ def effect_mask(sensor: str, names) -> np.ndarray:
         sensor: ``"acc"`` or ``"gyr"``.
         names: effect names (``"saturation"`` is skipped).
     """
-    m = np.zeros(N_THETA[sensor])
+    m = np.zeros(_n_theta(sensor))
     for n in names:
         if n == SATURATION:
             continue
@@ -243,15 +185,12 @@ def theta_from_params(sensor: str, params: dict[str, dict[str, np.ndarray]]) -> 
         sensor: ``"acc"`` or ``"gyr"``.
         params: ``{effect: {param: value}}``.
     """
-    th = np.zeros(N_THETA[sensor])
+    th = np.zeros(_n_theta(sensor))
     for name, p in params.items():
         if name == SATURATION:
             continue
         sl = slot(sensor, name)
-        v = np.asarray(p[sl.param], dtype=np.float64)
-        if name == "misalignment" and v.shape == (3, 3):
-            v = np.array([v[i, j] for i, j in OFFDIAG])
-        th[sl.start : sl.start + sl.size] = v.reshape(-1)
+        th[sl.start : sl.start + sl.size] = V.get(name).to_flat(p[sl.param])
     return th
 
 
@@ -264,17 +203,7 @@ def params_from_theta(sensor: str, name: str, theta) -> dict[str, object]:
         theta: (P,) flat effect parameters.
     """
     sl = slot(sensor, name)
-    v = np.asarray(theta)[sl.start : sl.start + sl.size]
-    if name == "misalignment":
-        m = np.zeros((3, 3))
-        for k, (i, j) in enumerate(OFFDIAG):
-            m[i, j] = v[k]
-        return {sl.param: m.tolist()}
-    if name == "g_sensitivity":
-        return {sl.param: v.reshape(3, 3).tolist()}
-    if sl.shape == ():
-        return {sl.param: float(v[0])}
-    return {sl.param: v.tolist()}
+    return {sl.param: V.get(name).public(np.asarray(theta)[sl.start : sl.start + sl.size])}
 
 
 class Inputs(NamedTuple):
@@ -326,47 +255,44 @@ def shift_signal(x: Float[Array, "N C"], tau: Float[Array, ""], dt: float | Floa
     return jnp.fft.irfft(spec * phase[:, None], n=2 * n, axis=0)[:n].astype(x.dtype)
 
 
-def _split(sensor: str, theta):
-    return {sl.name: theta[sl.start : sl.start + sl.size] for sl in LAYOUT[sensor]}
+def _apply_steps(sensor: str, theta, inp: Inputs, coupled: bool):
+    x = inp.f if sensor == "acc" else inp.w
+    i = 0
+    for e in V.smooth(sensor):
+        if e.coupled == coupled:
+            x = e.forward(theta[i : i + e.size], x, inp)
+        i += e.size
+    return x
 
 
 def sensor_input(sensor: str, theta: Float[Array, " Q"], inp: Inputs) -> Float[Array, "N 3"]:
-    """The physical input the sensor sees before its own errors (lever arm / g-sensitivity).
+    """The physical input the sensor sees before its own errors (the coupled effects: lever arm /
+    g-sensitivity).
 
     Args:
         sensor: ``"acc"`` or ``"gyr"`` (static).
         theta: (Q,) flat effect parameters.
         inp: reference signals.
     """
-    p = _split(sensor, theta)
-    if sensor == "acc":
-        r = p["lever_arm"]
-        cen = jnp.cross(inp.w, jnp.cross(inp.w, r)) if inp.ww is None else jnp.einsum("nij,j->ni", inp.ww, r)
-        rot = jnp.cross(inp.wdot, r) + cen
-        return inp.f + rot / G0
-    g = p["g_sensitivity"].reshape(3, 3)
-    return inp.w + inp.f @ g.T
+    return _apply_steps(sensor, theta, inp, True)
 
 
 def effects_forward(sensor: str, theta: Float[Array, " Q"], inp: Inputs) -> Float[Array, "N 3"]:
-    """``u`` of the module docstring: the input after every smooth effect, before the baseline.
+    """``u`` of the module docstring: the input after every smooth effect, before the baseline
+    (each record's ``forward`` step in the order of the chain).
 
     Args:
         sensor: ``"acc"`` or ``"gyr"`` (static).
         theta: (Q,) flat effect parameters.
         inp: reference signals.
     """
-    p = _split(sensor, theta)
     x = sensor_input(sensor, theta, inp)
-    x = shift_signal(x, p["time_offset"][0], inp.dt)
-    x = x + p["scale_nonlinearity"] * x * x
-    m = p["misalignment"]
-    mm = jnp.zeros((3, 3), x.dtype)
-    for k, (i, j) in enumerate(OFFDIAG):
-        mm = mm.at[i, j].set(m[k])
-    x = x + x @ mm.T
-    dT = inp.dT[:, None]
-    return (1.0 + p["temperature_scale"] * dT) * x + p["temperature_bias"] * dT + p["bias_drift"] * inp.tc[:, None]
+    i = 0
+    for e in V.smooth(sensor):
+        if not e.coupled:
+            x = e.forward(theta[i : i + e.size], x, inp)
+        i += e.size
+    return x
 
 
 N_BASE = {"diag": 6, "affine": 12}

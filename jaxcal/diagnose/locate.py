@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from jaxcal.allan import overlapping_adev
 from jaxcal.diagnose.whiten import ljung_box
 
 __all__ = [
@@ -61,7 +62,9 @@ def band_power(resid: np.ndarray, rows: np.ndarray, dt: float, edges=(0.0, 0.1, 
 
 
 def allan_deviation(x: np.ndarray, dt: float, n_taus: int = 12) -> tuple[np.ndarray, np.ndarray]:
-    """Overlapping Allan deviation of a (N,) rate-like series at octave-spaced ``tau`` (s).
+    """Overlapping Allan deviation of a (N,) rate-like series at octave-spaced ``tau = m dt`` (s),
+    ``m = 1, 2, 4, ...`` while ``2 m < N // 3``: :func:`jaxcal.allan.overlapping_adev` at those
+    cluster sizes.
 
     Args:
         x: (N,) rate-like series.
@@ -70,16 +73,16 @@ def allan_deviation(x: np.ndarray, dt: float, n_taus: int = 12) -> tuple[np.ndar
     """
     x = np.asarray(x, np.float64)
     n = len(x)
-    theta = np.concatenate([[0.0], np.cumsum(x)]) * dt
-    taus, adev = [], []
+    ms = []
     m = 1
-    while 2 * m < n // 3 and len(taus) < n_taus + 8:
-        tau = m * dt
-        d = theta[2 * m :] - 2 * theta[m:-m] + theta[: -2 * m]
-        adev.append(np.sqrt(np.mean(d * d) / (2 * tau * tau)))
-        taus.append(tau)
+    while 2 * m < n // 3 and len(ms) < n_taus + 8:
+        ms.append(m)
         m *= 2
-    return np.array(taus), np.array(adev)
+    if not ms:
+        return np.array([]), np.array([])
+    m = np.asarray(ms)
+    res = overlapping_adev(x, 1.0 / dt, taus=m * dt)
+    return m * dt, res.adev[:, 0]
 
 
 def breakdown(resid: np.ndarray, rows: np.ndarray, t: np.ndarray, w: np.ndarray, wdot: np.ndarray,

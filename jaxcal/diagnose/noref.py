@@ -44,8 +44,9 @@ from scipy.ndimage import gaussian_filter1d
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import kinematics as K
-from jaxcal.diagnose.core import Prepared, SensorResult, diagnose_sensor, require_recording
-from jaxcal.diagnose.select import SelectConfig, SensorData, candidates
+from jaxcal.diagnose.core import Mode, Prepared, SensorResult, count_tests, diagnose_sensors, require_recording
+from jaxcal.diagnose.report import build_report
+from jaxcal.diagnose.select import SelectConfig, SensorData
 from jaxcal.recording import Recording
 from jaxcal.sensor import LinearCal
 
@@ -61,7 +62,9 @@ __all__ = [
     "interleaved_blocks",
     "self_reference",
     "prepare_noref",
+    "SELF",
     "diagnose_noref",
+    "noref_report",
     "translation_warning",
     "carry_check",
 ]
@@ -424,11 +427,28 @@ def carry_check(ref: SelfReference, t: np.ndarray) -> dict:
     return {"n": len(ang), "median_deg": float(np.median(ang)), "max_deg": float(np.max(ang))}
 
 
+def _rest_config(sensor: str, cfg: SelectConfig) -> SelectConfig:
+    """The gyroscope's rows are separate rests: an AR noise model without the random walk, which
+    would take each rest's level (its bias + G f) for noise."""
+    return cfg if sensor == "acc" else cfg._replace(random_walk=False)
+
+
+def _rest_warning(sensor: str, warning: str) -> bool:
+    """The rests hold no rate: only the rest-output effects are diagnosable there, so the
+    gyroscope's "not excited" warnings say nothing."""
+    return sensor != "gyr" or "not excited" not in warning
+
+
+SELF = Mode("none", share_clock=False, sensor_config=_rest_config, keep_warning=_rest_warning)
+"""Against the IMU itself (:func:`prepare_noref`): the accelerometer's residual is already relative
+to the gyroscope's clock, so no clock offset is shared."""
+
+
 def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = SelectConfig(),
                    noref: NorefConfig = NorefConfig()) -> tuple[Prepared, dict[str, SensorResult], SelfReference]:
     """Prepare a recording against itself (:func:`prepare_noref`) and run the reference mode's
-    selection and refits on it (:func:`jaxcal.diagnose.core.diagnose_sensor`, one Bonferroni family
-    over both sensors; the gyroscope's noise model without a random walk). Returns
+    stages on it (:func:`jaxcal.diagnose.core.diagnose_sensors` with :data:`SELF`, one Bonferroni
+    family over both sensors; the gyroscope's noise model without a random walk). Returns
     ``(prepared, {sensor: SensorResult}, self reference)``.
 
     Args:
@@ -439,12 +459,38 @@ def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = Sel
     """
     ref = self_reference(rec, noref)
     prep = prepare_noref(rec, noref, ref)
-    n_tests = sum(len(candidates(kind, sd)) for sd in prep.sensors.values())
-    res = {}
-    for s, sd in prep.sensors.items():
-        # the gyroscope's rows are separate rests: an AR noise model without the random walk, which
-        # would take each rest's level (its bias + G f) for noise
-        res[s] = diagnose_sensor(kind, sd, cfg if s == "acc" else cfg._replace(random_walk=False), n_tests)
-    if "gyr" in res:  # the rests hold no rate: only the rest-output effects are diagnosable there
-        res["gyr"] = res["gyr"]._replace(warnings=[w for w in res["gyr"].warnings if "not excited" not in w])
+    res = diagnose_sensors({s: prep for s in prep.sensors}, kind, cfg, count_tests(kind, prep), mode=SELF)
     return prep, res, ref
+
+
+def noref_report(prep: Prepared, results: dict[str, SensorResult], ref: SelfReference, kind: str, runtime_s: float, noref: NorefConfig = NorefConfig()) -> dict:
+    """The ``report.json`` dict of a reference-free diagnosis (:func:`jaxcal.diagnose.noref.diagnose_noref`):
+    :func:`~jaxcal.diagnose.report.build_report` plus the optional fields ``"reference": "none"``
+    and ``"self_reference"`` (starting calibration, rests, gravity carried between rests), and the
+    translational-acceleration warning where the accelerometer's motion residual asks for one.
+
+    Args:
+        prep: the prepared recording (:func:`jaxcal.diagnose.noref.prepare_noref`).
+        results: ``{sensor: SensorResult}``.
+        ref: the :class:`~jaxcal.diagnose.noref.SelfReference`.
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        runtime_s: wall time to record (s).
+        noref: the settings used.
+    """
+    rep = build_report(prep, results, kind, runtime_s)
+    rep["reference"] = "none"
+    carry = carry_check(ref, prep.t)
+    rep["self_reference"] = {
+        "calibration_from": ref.source, "n_rests": int(np.count_nonzero(np.diff(np.concatenate([[0], ref.rest.astype(int)])) == 1)),
+        "rest_fraction": float(ref.rest.mean()), "gravity_sigma_s": noref.gravity_sigma_s, "fold_s": noref.fold_s,
+        "n_folds": noref.n_blocks, "carried_gravity_between_rests_deg": carry,
+        "acc_cal": {"A": np.asarray(ref.acc_cal.A).tolist(), "b": np.asarray(ref.acc_cal.b).tolist()},
+        "gyr_cal": {"A": np.asarray(ref.gyr_cal.A).tolist(), "b": np.asarray(ref.gyr_cal.b).tolist()},
+        "residual": "acc: measured specific force - gyro-carried gravity (1 g); gyr: output at rest - 0",
+    }
+    if "acc" in results:
+        w = translation_warning(prep, results["acc"], ref.rest)
+        if w is not None:
+            rep["warnings"].append(w)
+            rep["self_reference"]["translation"] = True
+    return rep

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose import vocabulary as V
 from jaxcal.diagnose.band import HALF_POWER
 from jaxcal.diagnose.core import FORCED, Prepared, SensorResult
 from jaxcal.diagnose.core import UNIT_OF as UNIT
@@ -48,12 +49,8 @@ def effect_estimate(rep: dict, sensor: str, name: str):
         if e["sensor"] == sensor and e["name"] == name:
             if name == "saturation":
                 return np.array([e["params"]["limit"]]), np.array([e["stderr"]["limit"]]), e
-            sl = E.slot(sensor, name)
-            p, s = e["params"][sl.param], e["stderr"][sl.param]
-            if name == "misalignment":
-                p = [np.asarray(p)[i, j] for i, j in E.OFFDIAG]
-                s = [np.asarray(s)[i, j] for i, j in E.OFFDIAG]
-            return np.ravel(p).astype(float), np.ravel(s).astype(float), e
+            sl, rec = E.slot(sensor, name), V.get(name)
+            return rec.to_flat(e["params"][sl.param]), rec.to_flat(e["stderr"][sl.param]), e
     return None, None, None
 
 

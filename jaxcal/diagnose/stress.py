@@ -41,7 +41,17 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxcal.diagnose import effects as E
+from jaxcal import rotation
+from jaxcal.diagnose.conceal import (
+    conceal,
+    conceal_drift,
+    conceal_gsens,
+    conceal_gsens_cal,
+    conceal_lever_arm_gyro,
+    conceal_misalignment,
+    conceal_shift,
+    effect_at_mds,
+)
 from jaxcal.recording import Recording
 
 __all__ = [
@@ -76,77 +86,33 @@ __all__ = [
 GT_MAX_GAP = 0.05  # s: a gap in a ``gt_t`` track longer than this is a reference gap (readers' default)
 
 
-# ----------------------------------------------------------------------------- rotations (numpy)
+# ----------------------------------------------------------------------------- rotations (jaxcal.rotation, float64)
+
+
+def _f64(fn, *args) -> np.ndarray:
+    """``fn(*args)`` of :mod:`jaxcal.rotation` in float64, as a numpy array."""
+    with jax.enable_x64(True):
+        return np.array(fn(*[jax.numpy.asarray(np.asarray(a, np.float64)) for a in args]))
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a ⊗ b`` of ``[w, x, y, z]`` quaternions (broadcasting over leading axes).
-
-    Args:
-        a: (..., 4) left factor, ``[w, x, y, z]``.
-        b: (..., 4) right factor, ``[w, x, y, z]``.
-    """
-    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
-    aw, av = a[..., :1], a[..., 1:]
-    bw, bv = b[..., :1], b[..., 1:]
-    w = aw * bw - np.sum(av * bv, -1, keepdims=True)
-    v = aw * bv + bw * av + np.cross(av, bv)
-    return np.concatenate([w, v], -1)
+    """Hamilton product ``a ⊗ b`` of ``[w, x, y, z]`` quaternions (:func:`jaxcal.rotation.quat_mul`, float64)."""
+    return _f64(rotation.quat_mul, a, b)
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Rotation matrix (body to world) of ``[w, x, y, z]`` quaternions; NaN rows stay NaN."""
-    q = np.asarray(q, np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
+    """Rotation matrix (body to world) of ``[w, x, y, z]`` quaternions (:func:`jaxcal.rotation.matrix_from_quat`, float64)."""
+    return _f64(rotation.matrix_from_quat, q)
 
 
 def matrix_to_quat(R: np.ndarray) -> np.ndarray:
-    """``[w, x, y, z]`` quaternion (w >= 0) of one rotation matrix (Shepperd's branch choice)."""
-    R = np.asarray(R, np.float64)
-    tr = np.trace(R)
-    d = np.array([1 + tr, 1 + R[0, 0] - R[1, 1] - R[2, 2], 1 - R[0, 0] + R[1, 1] - R[2, 2], 1 - R[0, 0] - R[1, 1] + R[2, 2]])
-    i = int(np.argmax(d))
-    c = [
-        [1 + tr, R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]],
-        [R[2, 1] - R[1, 2], 1 + R[0, 0] - R[1, 1] - R[2, 2], R[0, 1] + R[1, 0], R[0, 2] + R[2, 0]],
-        [R[0, 2] - R[2, 0], R[0, 1] + R[1, 0], 1 - R[0, 0] + R[1, 1] - R[2, 2], R[1, 2] + R[2, 1]],
-        [R[1, 0] - R[0, 1], R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], 1 - R[0, 0] - R[1, 1] + R[2, 2]],
-    ][i]
-    q = np.asarray(c) / np.linalg.norm(c)
-    return q if q[0] >= 0 else -q
+    """``[w, x, y, z]`` quaternion (w >= 0) of a rotation matrix (:func:`jaxcal.rotation.quat_from_matrix`, float64)."""
+    return _f64(rotation.quat_from_matrix, R)
 
 
 def rotvec_to_matrix(v: np.ndarray) -> np.ndarray:
-    """Exp of a rotation vector (rad, Rodrigues)."""
-    v = np.asarray(v, np.float64)
-    th = float(np.linalg.norm(v))
-    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * (K @ K)
-
-
-def _slerp_pairs(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Row-wise slerp from ``q0`` to ``q1`` at fraction ``u`` (N,), shortest arc."""
-    q1 = np.where(np.sum(q0 * q1, 1, keepdims=True) < 0, -q1, q1)
-    d = np.clip(np.sum(q0 * q1, 1, keepdims=True), -1.0, 1.0)
-    th = np.arccos(d)
-    s = np.sin(th)
-    small = s < 1e-9
-    u = u[:, None]
-    w0 = np.where(small, 1 - u, np.sin((1 - u) * th) / np.where(small, 1, s))
-    w1 = np.where(small, u, np.sin(u * th) / np.where(small, 1, s))
-    q = w0 * q0 + w1 * q1
-    return q / np.linalg.norm(q, axis=1, keepdims=True)
+    """Exp of a rotation vector (rad; :func:`jaxcal.rotation.exp_so3`, float64)."""
+    return _f64(rotation.exp_so3, v)
 
 
 # ----------------------------------------------------------------------------- pose tracks
@@ -171,7 +137,7 @@ def _interp_track(ts, pos, quat, good, t, max_gap):
     q0 = np.where(np.isfinite(quat[j]).all(1, keepdims=True), quat[j], [1.0, 0, 0, 0])
     q1 = np.where(np.isfinite(quat[j + 1]).all(1, keepdims=True), quat[j + 1], [1.0, 0, 0, 0])
     p = (1 - uc)[:, None] * p0 + uc[:, None] * p1
-    q = _slerp_pairs(q0 / np.linalg.norm(q0, axis=1, keepdims=True), q1 / np.linalg.norm(q1, axis=1, keepdims=True), uc)
+    q = rotation.slerp_pairs(q0 / np.linalg.norm(q0, axis=1, keepdims=True), q1 / np.linalg.norm(q1, axis=1, keepdims=True), uc)
     # exactly on a sample: that sample, bit for bit
     on0, on1 = ok & (u == 0), ok & (u == 1) & ~(u == 0)
     p[on0], q[on0] = pos[j[on0]], quat[j[on0]]
@@ -574,136 +540,6 @@ def random_stress_config(rng: np.random.Generator) -> StressConfig:
     )
 
 
-# ----------------------------------------------------------------------------- concealed IMU effects
-
-
-def conceal_shift(rec: Recording, tau: float, sensors: tuple[str, ...] = ("acc", "gyr")) -> Recording:
-    """Delay the IMU streams ``sensors`` by ``tau`` s (band-limited shift): they read x(t - tau).
-
-    Uses :func:`jaxcal.diagnose.effects.shift_signal` with the median step; the first/last
-    ``|tau| / dt`` samples are reflections. Truth: that sensor's time_offset += tau.
-
-    Args:
-        rec: the recording.
-        tau: delay (s); positive: the streams lag.
-        sensors: the streams to delay.
-    """
-    dt = float(np.median(np.diff(rec.t)))
-    return rec.replace(**{k: np.asarray(E.shift_signal(jax.numpy.asarray(getattr(rec, k)), jax.numpy.asarray(tau), dt), np.float64)
-                          for k in sensors})
-
-
-def conceal_gsens(rec: Recording, G: np.ndarray) -> Recording:
-    """Gyro reads ``+ G f`` with ``f`` the measured specific force (g), ``G`` (3, 3) or (9,) in
-    (rad/s)/g. Truth: g_sensitivity += G (to first order; ``f`` is the measured, not the true, force).
-
-    Args:
-        rec: the recording (``acc`` in g, ``gyr`` in rad/s).
-        G: (3, 3) or (9,) g-sensitivity ((rad/s)/g).
-    """
-    return rec.replace(gyr=rec.gyr + rec.acc @ np.asarray(G).reshape(3, 3).T)
-
-
-def conceal_lever_arm_gyro(rec: Recording, r: np.ndarray, gyr_cal=None, acc_cal=None) -> Recording:
-    """Move the accelerometer by ``r`` (m, body frame) on the same rigid body, from the recording's
-    own gyroscope: ``f += (dw/dt x r + w x (w x r)) / g0`` with ``w`` the (calibrated) gyroscope and
-    ``dw/dt`` its five-point derivative. Needs no reference; truth: lever_arm += r (reference-free
-    mode; the added term carries the gyro's noise and any gyro calibration error, to first order).
-
-    Args:
-        rec: the recording (``acc`` in g, or LSB with ``acc_lsb_per_g``; ``gyr`` in rad/s unless
-            ``gyr_cal`` is given).
-        r: (3,) displacement (m).
-        gyr_cal: optional :class:`~jaxcal.sensor.LinearCal` turning ``gyr`` into rad/s.
-        acc_cal: optional :class:`~jaxcal.sensor.LinearCal` of ``acc``: the added force (g) enters
-            its output as ``A^-1 add``.
-    """
-    from jaxcal.constants import G0
-    from jaxcal.diagnose.kinematics import derivative5
-
-    w = np.asarray(rec.gyr, np.float64) if gyr_cal is None else np.asarray(gyr_cal.apply(np.asarray(rec.gyr, np.float64)))
-    dt = float(np.median(np.diff(rec.t)))
-    r = np.asarray(r, np.float64)
-    add = (np.cross(derivative5(w, dt), r) + np.cross(w, np.cross(w, r))) / G0
-    if acc_cal is not None:
-        add = np.linalg.solve(np.asarray(acc_cal.A, np.float64), add.T).T
-    elif rec.acc_unit == "LSB":
-        if rec.acc_lsb_per_g is None:
-            raise ValueError("conceal_lever_arm_gyro: raw accelerometer counts need acc_lsb_per_g")
-        add = add * np.broadcast_to(np.asarray(rec.acc_lsb_per_g, np.float64), (3,))
-    return rec.replace(acc=np.asarray(rec.acc, np.float64) + add)
-
-
-def conceal_gsens_cal(rec: Recording, G: np.ndarray, acc_cal, gyr_cal) -> Recording:
-    """Gyro reads ``+ G f`` with ``f`` the accelerometer calibrated by ``acc_cal`` (g) and the
-    added rate entering the gyro's output through ``gyr_cal`` (``A_g^-1 G f``): the g-sensitivity
-    of :func:`conceal_gsens` for a recording in any units. Truth: g_sensitivity += G (first order).
-
-    Args:
-        rec: the recording.
-        G: (3, 3) or (9,) g-sensitivity ((rad/s)/g).
-        acc_cal, gyr_cal: :class:`~jaxcal.sensor.LinearCal` of the two sensors.
-    """
-    f = np.asarray(acc_cal.apply(np.asarray(rec.acc, np.float64)))
-    add = f @ np.asarray(G, np.float64).reshape(3, 3).T
-    return rec.replace(gyr=np.asarray(rec.gyr, np.float64) + np.linalg.solve(np.asarray(gyr_cal.A, np.float64), add.T).T)
-
-
-def conceal_misalignment(rec: Recording, sensor: str, m6: np.ndarray) -> Recording:
-    """Sensor reads ``(I + m) y`` (``m`` off-diagonal, entries ``m6`` in ``E.OFFDIAG`` order).
-
-    Truth: misalignment about m (to first order in m and the as-recorded scale error).
-
-    Args:
-        rec: the recording.
-        sensor: ``"acc"`` or ``"gyr"``.
-        m6: (6,) off-diagonal entries of ``m``, in ``E.OFFDIAG`` order.
-    """
-    mm = np.zeros((3, 3))
-    for k, (i, j) in enumerate(E.OFFDIAG):
-        mm[i, j] = m6[k]
-    y = getattr(rec, sensor)
-    return rec.replace(**{sensor: y + y @ mm.T})
-
-
-def conceal_drift(rec: Recording, sensor: str, d: np.ndarray) -> Recording:
-    """Sensor reads ``+ d (t - t_mid)`` (a linear bias drift, ``d`` (3,) unit/s, ``t_mid`` the
-    recording's mid time). Truth: bias_drift += d (up to the baseline's scale).
-
-    Args:
-        rec: the recording.
-        sensor: ``"acc"`` or ``"gyr"``.
-        d: (3,) drift rate (the sensor's unit per s).
-    """
-    t = rec.t
-    return rec.replace(**{sensor: getattr(rec, sensor) + np.outer(t - 0.5 * (t[0] + t[-1]), d)})
-
-
-def conceal(rec: Recording, sensor: str, name: str, v: np.ndarray) -> Recording:
-    """Conceal vocabulary effect ``name`` of ``sensor`` with flat parameters ``v``.
-
-    ``lever_arm`` (acc; v = r), ``time_offset`` (v = [tau]), ``g_sensitivity`` (gyr; v = G flat),
-    ``misalignment`` (v = m6), ``bias_drift`` (v = d). Raises KeyError for any other name.
-
-    Args:
-        rec: the recording (``acc``/``gyr`` in g and rad/s; a pose for ``lever_arm``).
-        sensor: ``"acc"`` or ``"gyr"``.
-        name: the vocabulary effect (``docs/CONVENTIONS.md``).
-        v: flat parameters of the effect (vocabulary units).
-    """
-    if name == "lever_arm":
-        return conceal_lever_arm(rec, v)
-    if name == "time_offset":
-        return conceal_shift(rec, float(v[0]), (sensor,))
-    if name == "g_sensitivity":
-        return conceal_gsens(rec, v)
-    if name == "misalignment":
-        return conceal_misalignment(rec, sensor, v)
-    if name == "bias_drift":
-        return conceal_drift(rec, sensor, v)
-    raise KeyError(name)
-
-
 # ----------------------------------------------------------------------------- scoring an alignment
 
 GOALS = {"tau_s": 1e-3, "rotation_deg": 0.5, "r_m": 0.01}  # issue 14's goals; or 3 standard errors, the larger
@@ -751,45 +587,3 @@ def alignment_errors(align: dict, expected: dict, goals: dict = GOALS) -> dict:
                     "r_ok": bool(np.all(np.abs(r_err) <= np.maximum(goals["r_m"], 3 * r_se)))})
     out["all_ok"] = bool(out["tau_ok"] and out["rotation_ok"] and out.get("r_ok", True))
     return out
-
-
-# ----------------------------------------------------------------------------- effects sized by a null report
-
-
-def effect_at_mds(rng: np.random.Generator, null_report: dict, sensor: str, name: str, m: float,
-                  y: np.ndarray) -> tuple[dict, dict, np.ndarray]:
-    """An effect of ``m`` times its minimum detectable size, in a random direction of its parameters.
-
-    The size comes from the null report's detectability entry (``mds``: Fisher matrix, detectable
-    components, noncentrality ``lambda_star``), so the injected effect is ``m`` x MDS along a random
-    direction of the detectable components. Saturation: a clipping limit ``m`` x the detectable depth
-    below the model's noiseless peak (or the observed peak of ``y``).
-
-    Args:
-        rng: numpy generator for the direction.
-        null_report: :func:`jaxcal.diagnose.diagnose_recording`'s report of the recording without it.
-        sensor, name: the vocabulary effect (``docs/CONVENTIONS.md``).
-        m: size in multiples of the MDS.
-        y: (N, 3) the sensor's output (the saturation fallback peak).
-
-    Returns:
-        ``(effects, saturation, truth)``: the simulator's effect parameters ``{(sensor, name): params}``,
-        the saturation limits ``{sensor: limit}``, and the flat true parameters.
-    """
-    md = null_report["sensors"][sensor]["mds"][name]
-    if name == "saturation":
-        # the depth is below the model's noiseless peak (the observed peak sits a few noise sd above it)
-        peak = float(md.get("predicted_peak_lsb", np.max(np.abs(y))))
-        lim = float(np.floor(peak - m * md["depth_lsb"]))
-        return {}, {sensor: lim}, np.array([lim])
-    F = np.asarray(md["fisher"])
-    comp = np.asarray(md["components"])
-    v = rng.standard_normal(len(comp)) * comp
-    u = v / np.linalg.norm(v)
-    th = m * np.sqrt(md["lambda_star"] / float(u @ F @ u)) * u
-    sl = E.slot(sensor, name)
-    params = {sl.param: th if sl.shape != () else th[:1]}
-    flat = np.zeros(E.N_THETA[sensor])
-    flat[sl.start : sl.start + sl.size] = th
-    return {(sensor, name): params}, {}, flat[sl.start : sl.start + sl.size]
-

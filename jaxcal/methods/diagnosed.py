@@ -48,12 +48,11 @@ from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import numpy as np
-from jaxtyping import Float
-from scipy.interpolate import CubicSpline
 
-from jaxcal.arrays import Array
 from jaxcal.constants import G0, SENSORS
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose import vocabulary as V
+from jaxcal.diagnose.vocabulary import InverseContext, invert_nonlinearity, unshift
 from jaxcal.methods.base import (
     Fitted,
     Log,
@@ -67,9 +66,9 @@ from jaxcal.methods.base import (
 from jaxcal.recording import Recording, sequence_slices
 
 __all__ = [
-    "CARRIED",
-    "NOT_CARRIED",
-    "PARAM_SHAPES",
+    "CARRIED",  # noqa: F822 - derived on access (__getattr__)
+    "NOT_CARRIED",  # noqa: F822 - derived on access (__getattr__)
+    "PARAM_SHAPES",  # noqa: F822 - derived on access (__getattr__)
     "COUPLING_PASSES",
     "DiagnosedOptions",
     "fit",
@@ -81,28 +80,37 @@ __all__ = [
     "METHOD",
 ]
 
-CARRIED = ("lever_arm", "g_sensitivity", "misalignment", "scale_nonlinearity", "time_offset", "temperature_bias", "temperature_scale")
-"""The effects a ``diagnosed`` model carries and :func:`apply` inverts."""
+def __getattr__(name: str):
+    """The tables of this method, derived from the vocabulary's records
+    (:mod:`jaxcal.diagnose.vocabulary`) whenever they are read:
 
-NOT_CARRIED = {
-    "bias_drift": "a drift over the diagnosed recording's own clock does not transfer to another recording",
-    "saturation": "clipped samples cannot be restored",
-}
+    * ``CARRIED``: the effects a ``diagnosed`` model carries and :func:`apply` inverts;
+    * ``NOT_CARRIED``: ``{effect: why it is not carried}``;
+    * ``PARAM_SHAPES``: shape of each effect's array in ``state/<sensor>/<effect>`` (``T0``: the
+      reference temperature of effects that need ``temp``).
+    """
+    if name == "CARRIED":
+        return _carried()
+    if name == "NOT_CARRIED":
+        return {e.name: e.not_carried for e in V.REGISTRY.values() if e.not_carried}
+    if name == "PARAM_SHAPES":
+        return _param_shapes()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
-PARAM_SHAPES = {
-    "lever_arm": (3,),
-    "g_sensitivity": (3, 3),
-    "misalignment": (3, 3),
-    "scale_nonlinearity": (3,),
-    "time_offset": (),
-    "temperature_bias": (3,),
-    "temperature_scale": (3,),
-    "T0": (),
-}
-"""Shape of each effect's array in ``state/<sensor>/<effect>`` (``T0``: the reference temperature)."""
+
+def _carried() -> tuple[str, ...]:
+    return tuple(e.name for e in V.REGISTRY.values() if e.carried)
+
+
+def _param_shapes() -> dict[str, tuple[int, ...]]:
+    return {**{e.name: e.shape for e in V.REGISTRY.values() if e.carried}, "T0": ()}
+
+
+def _sensor_effects(sensor: str) -> set[str]:
+    return {sl.name for sl in E.LAYOUT[sensor]}
+
 
 COUPLING_PASSES = 4  # fixed-point passes of the g-sensitivity <-> lever-arm coupling
-_SENSOR_EFFECTS = {s: {sl.name for sl in E.LAYOUT[s]} for s in SENSORS}
 
 
 class DiagnosedOptions(NamedTuple):
@@ -156,12 +164,13 @@ def diagnosed_model_state(preps: Mapping[str, Any], results: Mapping[str, Any], 
         if not baseline_only and r.saturation is not None and r.saturation.get("selected"):
             named.append("saturation")
         for n in named:
-            if n not in CARRIED:
-                meta["not_carried"].append({"sensor": s, "name": n, "why": NOT_CARRIED.get(n, "not modelled by apply")})
+            e = V.REGISTRY.get(n)
+            if e is None or not e.carried:
+                meta["not_carried"].append({"sensor": s, "name": n, "why": (e.not_carried if e else "") or "not modelled by apply"})
                 continue
             v = E.params_from_theta(s, n, theta)[E.slot(s, n).param]
-            p[n] = np.asarray(v, np.float64).reshape(PARAM_SHAPES[n])
-        if any(n.startswith("temperature") for n in p):
+            p[n] = np.asarray(v, np.float64).reshape(e.shape)
+        if any("temp" in V.REGISTRY[n].needs for n in p if n in V.REGISTRY):
             # T0 of the diagnosis: the mean temperature over its valid rows (dT = temp - T0)
             prep = preps[s]
             p["T0"] = np.asarray(float(np.mean(np.asarray(prep.temp, np.float64) - np.asarray(sd.inp.dT, np.float64))))
@@ -169,7 +178,7 @@ def diagnosed_model_state(preps: Mapping[str, Any], results: Mapping[str, Any], 
             if T.size:  # `jaxcal apply` refuses a recording far outside it (jaxcal.plausible)
                 meta.setdefault("temperature_range_degC", {})[s] = [float(T.min()), float(T.max())]
         state[s] = p
-        meta["effects"][s] = [n for n in CARRIED if n in p]
+        meta["effects"][s] = [n for n in _carried() if n in p]
     if "gyr" in state and "g_sensitivity" in state["gyr"] and "acc" not in state and rec is not None and rec.acc is not None:
         spec = recording_spec(rec, "acc")
         if spec is not None:
@@ -205,43 +214,7 @@ def fit(rec: Recording, options: DiagnosedOptions, log: Log) -> Fitted:
     return fitted
 
 
-# ----------------------------------------------------------------------------- inverse steps
-
-
-def invert_nonlinearity(x2: Float[Array, "N 3"], k2: Float[Array, " 3"]) -> Float[Array, "N 3"]:
-    """The root through the origin of ``x1 + k2 x1**2 = x2`` per axis, ``2 x2 / (1 + sqrt(1 + 4 k2 x2))``
-    (exact for ``k2 = 0``); beyond the fold (``1 + 4 k2 x2 < 0``) the fold ``-1 / (2 k2)``.
-
-    Args:
-        x2: (N, 3) output of the nonlinearity.
-        k2: (3,) quadratic coefficients.
-    """
-    k2 = np.broadcast_to(np.asarray(k2, np.float64), (3,))
-    disc = 1.0 + 4.0 * k2 * x2
-    root = 2.0 * x2 / (1.0 + np.sqrt(np.maximum(disc, 0.0)))
-    with np.errstate(divide="ignore"):
-        fold = np.where(k2 != 0.0, -0.5 / np.where(k2 != 0.0, k2, 1.0), 0.0)
-    return np.where(disc < 0.0, np.broadcast_to(fold, x2.shape), root)
-
-
-def unshift(x1: Float[Array, "N 3"], t: Float[Array, " N"], tau: float, slices: list[slice]) -> Float[Array, "N 3"]:
-    """``x1(t + tau)`` at every sample (undo a delay ``tau``): a not-a-knot cubic spline through each
-    sequence's samples, the edge sample held where ``t + tau`` leaves the sequence.
-
-    Args:
-        x1: (N, 3) delayed signal.
-        t: (N,) sample times (s).
-        tau: the delay (s; positive: the sensor reads late).
-        slices: contiguous sequences (:func:`jaxcal.recording.sequence_slices`).
-    """
-    out = np.array(x1, np.float64, copy=True)
-    for sl in slices:
-        ts = t[sl]
-        if len(ts) < 2:
-            continue
-        q = np.clip(ts + tau, ts[0], ts[-1])
-        out[sl] = CubicSpline(ts, x1[sl], axis=0)(q)
-    return out
+# ----------------------------------------------------------------------------- inverse
 
 
 def _derivative(w: np.ndarray, dt: float, slices: list[slice]) -> np.ndarray:
@@ -272,23 +245,20 @@ def _need(rec: Recording, field: str, why: str, plural: bool = False) -> np.ndar
 
 
 def _sensor_xin(s: str, p: Mapping[str, Any], rec: Recording, t: np.ndarray, slices: list[slice]) -> np.ndarray:
-    """``x_in`` of one sensor: every step of the inverse but the cross-sensor one."""
+    """``x_in`` of one sensor: every step of the inverse but the coupled (cross-sensor) ones, each
+    carried effect's ``inverse`` in the reverse order of the forward chain."""
     y = np.asarray(getattr(rec, s), np.float64)
     S, b = np.asarray(p["S"], np.float64), np.asarray(p["b"], np.float64)
     x = np.linalg.solve(S, (y - b).T).T
-    if "temperature_bias" in p or "temperature_scale" in p:
-        names = " and ".join(n for n in ("temperature_bias", "temperature_scale") if n in p)
-        dT = (_need(rec, "temp", f"the model's {s} {names}", " and " in names) - float(p["T0"]))[:, None]
-        kb = np.asarray(p.get("temperature_bias", np.zeros(3)), np.float64)
-        ks = np.asarray(p.get("temperature_scale", np.zeros(3)), np.float64)
-        x = (x - kb * dT) / (1.0 + ks * dT)
-    if "misalignment" in p:
-        m = np.asarray(p["misalignment"], np.float64) * (1.0 - np.eye(3))
-        x = np.linalg.solve(np.eye(3) + m, x.T).T
-    if "scale_nonlinearity" in p:
-        x = invert_nonlinearity(x, p["scale_nonlinearity"])
-    if "time_offset" in p:
-        x = unshift(x, t, float(p["time_offset"]), slices)
+    steps = [e for e in reversed(V.smooth(s)) if e.inverse is not None and e.name in p]
+    dT = None
+    temp = [e.name for e in steps if "temp" in e.needs]
+    if temp:
+        names = " and ".join(temp)
+        dT = (_need(rec, "temp", f"the model's {s} {names}", len(temp) > 1) - float(p["T0"]))[:, None]
+    ctx = InverseContext(t, slices, dT)
+    for e in steps:
+        x = e.inverse(p[e.name], x, ctx)
     return x
 
 
@@ -346,17 +316,18 @@ def check(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str,
         sensors: the model's sensors.
     """
     check_linear_state(state, meta, sensors)
+    shapes = _param_shapes()
     for s in sensors:
         p = state[s]
         for k, v in p.items():
             if k in ("S", "b"):
                 continue
-            if k not in PARAM_SHAPES or (k != "T0" and k not in _SENSOR_EFFECTS[s]):
+            if k not in shapes or (k != "T0" and k not in _sensor_effects(s)):
                 raise ModelError(f"state/{s}/{k}: not an effect a 'diagnosed' model of '{s}' carries "
-                                 f"(known: {', '.join(n for n in CARRIED if n in _SENSOR_EFFECTS[s])})")
-            if np.shape(v) != PARAM_SHAPES[k]:
-                raise ModelError(f"state/{s}/{k} has shape {np.shape(v)}, expected {PARAM_SHAPES[k]}")
-        if ("temperature_bias" in p or "temperature_scale" in p) and "T0" not in p:
+                                 f"(known: {', '.join(n for n in _carried() if n in _sensor_effects(s))})")
+            if np.shape(v) != shapes[k]:
+                raise ModelError(f"state/{s}/{k} has shape {np.shape(v)}, expected {shapes[k]}")
+        if any("temp" in V.REGISTRY[k].needs for k in p if k in V.REGISTRY) and "T0" not in p:
             raise ModelError(f"state/{s}: temperature terms without their reference temperature T0")
 
 
