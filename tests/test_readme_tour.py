@@ -1,7 +1,7 @@
 """The README's tour runs as written (issue 29, point 4).
 
 The ```bash block under "### Tour" is executed command by command in a temporary folder that holds
-the repository's ``data/`` and ``docs/`` (links): every command must exit 0, no two commands may
+the repository's ``data/`` and ``docs/`` (links): every command must exit 0 without a Python warning on stderr, no two commands may
 write the same output, and nothing may be written outside ``tour/`` (the tour's own folder). A
 placeholder (a file the tour never made and the repository does not hold) fails the command, so
 the test also proves that the tour has none.
@@ -68,5 +68,7 @@ def test_the_tour_runs_as_written(tmp_path):
         r = subprocess.run(["bash", "-c", cmd], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=900)
         if r.returncode != 0:
             pytest.fail(f"tour command failed (exit {r.returncode}): {cmd}\n{r.stdout[-2000:]}\n{r.stderr[-2000:]}")
+        warned = [ln for ln in r.stderr.splitlines() if "Warning:" in ln]
+        assert not warned, f"{cmd}: a Python warning reached the user: {warned[:3]}"
     left = {p.name for p in tmp_path.iterdir()} - before
     assert left <= {"tour"}, f"the tour wrote outside tour/: {sorted(left - {'tour'})}"

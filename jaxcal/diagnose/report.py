@@ -349,9 +349,10 @@ def figures(prep: Prepared, results: dict[str, SensorResult]) -> dict:
         rn_f = np.linalg.norm(r.final_all.resid, axis=1)
         edges = np.quantile(wn[rows], np.linspace(0, 1, 16))
         idx = np.clip(np.searchsorted(edges, wn, side="right") - 1, 0, 14)
-        cen = [np.median(wn[rows & (idx == k)]) for k in range(15)]
-        ax[0, 1].plot(cen, [np.sqrt(np.mean(rn_b[rows & (idx == k)] ** 2)) for k in range(15)], "o-", label="baseline")
-        ax[0, 1].plot(cen, [np.sqrt(np.mean(rn_f[rows & (idx == k)] ** 2)) for k in range(15)], "s-", label="final")
+        bins = [rows & (idx == k) for k in range(15) if (rows & (idx == k)).any()]  # tied rates leave empty bins
+        cen = [np.median(wn[b]) for b in bins]
+        ax[0, 1].plot(cen, [np.sqrt(np.mean(rn_b[b] ** 2)) for b in bins], "o-", label="baseline")
+        ax[0, 1].plot(cen, [np.sqrt(np.mean(rn_f[b] ** 2)) for b in bins], "s-", label="final")
         ax[0, 1].set(xlabel="|rate| (rad/s)", ylabel=f"residual rms ({u})", title="residual vs motion regime")
         ax[0, 1].legend()
         # fitted-effect check: baseline residual vs what the named effects predict
@@ -361,7 +362,8 @@ def figures(prep: Prepared, results: dict[str, SensorResult]) -> dict:
                 xx, yy = contrib[rows, i], r.base_all.resid[rows, i]
                 q = np.quantile(xx, np.linspace(0, 1, 21))
                 k = np.clip(np.searchsorted(q, xx, side="right") - 1, 0, 19)
-                ax[1, 0].plot([xx[k == j].mean() for j in range(20)], [yy[k == j].mean() for j in range(20)], "o", label=f"axis {c} (binned)")
+                js = [j for j in range(20) if (k == j).any()]
+                ax[1, 0].plot([xx[k == j].mean() for j in js], [yy[k == j].mean() for j in js], "o", label=f"axis {c} (binned)")
             lim = np.abs(contrib[rows]).max()
             ax[1, 0].plot([-lim, lim], [-lim, lim], "k--", label="y = x")
             ax[1, 0].set(title="baseline residual vs named-effect prediction")
@@ -372,7 +374,8 @@ def figures(prep: Prepared, results: dict[str, SensorResult]) -> dict:
             else:
                 ax[1, 0].set(title="no effect named")
         ax[1, 0].set(xlabel=f"predicted effect ({u})" if r.selected else "temperature (degC)", ylabel=f"baseline residual ({u})")
-        ax[1, 0].legend(fontsize=7)
+        if ax[1, 0].get_legend_handles_labels()[0]:
+            ax[1, 0].legend(fontsize=7)
         for res, lab, sty in ((r.base_all.resid, "baseline", "-"), (r.final_all.resid, "final", "--")):
             for i, c in enumerate("xyz"):
                 ta, ad = allan_deviation(res[rows, i], prep.dt)
