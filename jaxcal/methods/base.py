@@ -2,7 +2,8 @@
 
 A method is a :class:`Method`: a name, a ``fit`` and an ``apply`` function, its typed options
 (a ``NamedTuple`` whose defaults are the only copy of the method's defaults; the CLI reads its
-flags' defaults from them), a one-line description and an optional ``check`` of a loaded state.
+flags' defaults from them), a one-line description, an optional ``check`` of a loaded state and
+an optional ``quality`` (what ``jaxcal calibrate`` reports in-sample and held out).
 
 * ``fit(rec, options, log) -> Fitted``: estimate a calibration from a
   :class:`~jaxcal.recording.Recording`; ``log`` is a progress sink (one line per call).
@@ -52,6 +53,7 @@ __all__ = [
     "affine_state",
     "apply_linear_state",
     "check_linear_state",
+    "datasheet_cals",
     "gsens_of",
     "holdout_mask",
     "labelled_sensors",
@@ -103,6 +105,10 @@ class Method(NamedTuple):
         options: the method's options type (a ``NamedTuple`` with a default for every field).
         doc: one-line description (``jaxcal methods``).
         check: optional ``check(state, meta, sensors)`` run by ``load_model``; raises :class:`ModelError`.
+        quality: optional ``quality(rec, options, model, *, held_out, log) -> (in_sample, held_out)``,
+            the method's quality rows (:class:`~jaxcal.eval.scores.QualityRow`, ``None`` where not
+            computed) that ``jaxcal calibrate`` reports (:func:`jaxcal.methods.summary.describe`);
+            ``None``: no built-in held-out score.
     """
 
     name: str
@@ -111,6 +117,7 @@ class Method(NamedTuple):
     options: type
     doc: str
     check: CheckFn | None = None
+    quality: Callable[..., tuple[Any, Any]] | None = None
 
 
 # ----------------------------------------------------------------------------- recording helpers
@@ -149,6 +156,19 @@ def recording_spec(rec: Recording, sensor: str) -> Diag | None:
     if scale is None:
         return None
     return spec_diag(np.asarray(scale, np.float32), np.asarray(0.0 if bias is None else bias, np.float32))
+
+
+def datasheet_cals(rec: Recording) -> tuple[LinearCal, LinearCal] | None:
+    """The datasheet conversion of both sensors (:func:`recording_spec`) as numpy float64
+    :class:`~jaxcal.sensor.LinearCal` pair (the starting point of the ``seq`` methods), or ``None``
+    when either has no datasheet values."""
+    specs = [recording_spec(rec, s) for s in SENSORS]
+    if any(sp is None for sp in specs):
+        return None
+    with jax.enable_x64(True):
+        cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
+                     for sp in specs)
+        return tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
 
 
 def recording_dt(rec: Recording) -> float:

@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxcal.constants import PHYS_UNIT
 from jaxcal.methods.base import REF_KEY, Fitted, Log, Method, ModelError, labelled_sensors, rms, units
+from jaxcal.methods.quality import refit_quality
 from jaxcal.normalise import Bounds
 from jaxcal.polynomial import CubicCal, cubic_calibrate, degree_of, fit_cubic, n_monomials, n_params
 from jaxcal.recording import Recording
@@ -134,4 +135,5 @@ METHOD = Method(
     "cubic", fit, apply, CubicOptions,
     "polynomial (default cubic, all cross terms) model x = f(y) per sensor (thesis 2.1.2); needs acc_ref/gyr_ref",
     check,
+    quality=refit_quality,
 )

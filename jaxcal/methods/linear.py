@@ -25,6 +25,7 @@ from jaxcal.methods.base import (
     rms,
     units,
 )
+from jaxcal.methods.quality import refit_quality
 from jaxcal.recording import Recording
 from jaxcal.sensor import Affine, LinearCal
 
@@ -74,4 +75,5 @@ METHOD = Method(
     "linear", fit, apply_linear_state, LinearOptions,
     "12-parameter affine model per sensor (thesis eq. 3.1-3.5); needs acc_ref/gyr_ref",
     check_linear_state,
+    quality=refit_quality,
 )

@@ -41,7 +41,8 @@ from jaxcal.multipos import (
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "detect_options", "determined_folds", "fit", "heldout", "multipos_config"]
+__all__ = ["METHOD", "MultiposOptions", "detect_options", "determined_folds", "fit", "heldout", "multipos_config",
+           "quality"]
 
 
 class MultiposOptions(NamedTuple):
@@ -249,8 +250,43 @@ def determined_folds(data: Any, whole: Any, ho: Any) -> tuple[np.ndarray, np.nda
     return acc_ok, gyr_ok
 
 
+def _without_g(rec: Recording, options: MultiposOptions, model: Any, log: Log) -> dict[str, Any]:
+    """The same leave-one-pose-out figure of ``multipos`` without ``--g-sensitivity``, so a user sees
+    whether fitting ``G`` helped this session (on the MPU-6050's 10 poses it does not; results/real.md)."""
+    log("held out without --g-sensitivity, for comparison ...")
+    plain = options._replace(g_sensitivity=False, latitude=None)
+    try:
+        q = heldout(rec, plain, model.meta)
+    except ModelError as e:
+        return {"error": str(e)}
+    return {k: q[k] for k in ("acc_rms_mg", "gyr_median_deg", "how")}
+
+
+def quality(rec: Recording, options: MultiposOptions, model: Any, *, held_out: bool = True,
+            log: Log | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """In-sample quality from the fit's summary (``meta["fit_quality"]``: all poses and
+    transitions) and the leave-one-pose-out figure (:func:`heldout`); with ``--g-sensitivity``
+    also that figure without ``G`` (``without_g_sensitivity``).
+
+    The arguments and rows of a method's ``quality`` (:data:`jaxcal.methods.quality.QualityFn`).
+    """
+    q = model.meta.get("fit_quality", {})
+    ins = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
+           "how": "all poses and transitions"}
+    if not held_out:
+        return ins, None
+    try:
+        ho = heldout(rec, options, model.meta)
+    except ModelError as e:
+        return ins, {"error": str(e)}
+    if options.g_sensitivity:
+        ho["without_g_sensitivity"] = _without_g(rec, options, model, log or (lambda msg: None))
+    return ins, ho
+
+
 METHOD = Method(
     "multipos", fit, apply_linear_state, MultiposOptions,
     "static poses joined by rotations (Tedaldi et al. 2014); no labels, no datasheet values",
     check_linear_state,
+    quality=quality,
 )

@@ -14,7 +14,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS, PHYS_UNIT, SENSORS
-from jaxcal.methods.base import REF_KEY, Fitted, Log, Method, ModelError, holdout_mask, labelled_sensors, recording_spec, units
+from jaxcal.methods.base import (
+    REF_KEY,
+    Fitted,
+    Log,
+    Method,
+    ModelError,
+    holdout_mask,
+    labelled_sensors,
+    recording_spec,
+    units,
+)
+from jaxcal.methods.quality import early_stopping_quality
 from jaxcal.nn import MLP, NNCalibration, fit_nn, nn_calibrate
 from jaxcal.normalise import Bounds, bounds_from_spec
 from jaxcal.recording import Recording
@@ -205,4 +216,5 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
     return out
 
 
-METHOD = Method("nn", fit, apply, NNOptions, "MLP sensor model per sensor (thesis section 3.3); needs acc_ref/gyr_ref")
+METHOD = Method("nn", fit, apply, NNOptions, "MLP sensor model per sensor (thesis section 3.3); needs acc_ref/gyr_ref",
+                quality=early_stopping_quality)
