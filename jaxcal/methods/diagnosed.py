@@ -78,6 +78,7 @@ __all__ = [
     "diagnosed_model_state",
     "invert_nonlinearity",
     "unshift",
+    "without_effect",
     "METHOD",
 ]
 
@@ -358,6 +359,22 @@ def check(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str,
                 raise ModelError(f"state/{s}/{k} has shape {np.shape(v)}, expected {PARAM_SHAPES[k]}")
         if ("temperature_bias" in p or "temperature_scale" in p) and "T0" not in p:
             raise ModelError(f"state/{s}: temperature terms without their reference temperature T0")
+
+
+def without_effect(model: Any, sensor: str, name: str) -> Any:
+    """A ``diagnosed`` model with one carried effect dropped (baseline and the other effects at their
+    joint refit values, not refitted; ``T0`` dropped with the last temperature term).
+
+    Args:
+        model: the diagnosed :class:`~jaxcal.methods.CalibrationModel`.
+        sensor: the effect's sensor.
+        name: the effect.
+    """
+    st = {s: dict(p) for s, p in model.state.items()}
+    st[sensor].pop(name)
+    if "T0" in st[sensor] and not any(k.startswith("temperature") for k in st[sensor]):
+        st[sensor].pop("T0")
+    return type(model)("diagnosed", model.sensors, st, model.meta)
 
 
 METHOD = Method(
