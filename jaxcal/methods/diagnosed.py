@@ -51,9 +51,11 @@ import numpy as np
 from jaxtyping import Float
 from scipy.interpolate import CubicSpline
 
+from jaxcal import flags
 from jaxcal.arrays import Array
 from jaxcal.constants import G0, SENSORS
 from jaxcal.diagnose import effects as E
+from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     Fitted,
     Log,
@@ -115,6 +117,10 @@ class DiagnosedOptions(NamedTuple):
     """
 
     baseline: str = "diag"
+
+    FLAGS = {"baseline": Flag("--baseline", flags.choice("diag", "affine"), None, "baseline sensor model diagnosed "
+                              "against: diag (thesis eq. 4.6) or affine (eq. 2.3), as `jaxcal diagnose --baseline`",
+                              "diag|affine")}
 
 
 # ----------------------------------------------------------------------------- diagnosis -> state

@@ -15,6 +15,7 @@ from jaxcal.constants import PHYS_UNIT
 from jaxcal.linear import fit_affine
 from jaxcal.methods.base import (
     REF_KEY,
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -40,6 +41,8 @@ class LinearOptions(NamedTuple):
     """
 
     sensors: tuple[str, ...] | None = None
+
+    FLAGS = {"sensors": SHARED_FLAGS["sensors"]}
 
 
 def fit(rec: Recording, options: LinearOptions, log: Log) -> Fitted:

@@ -10,14 +10,16 @@ from typing import Any, NamedTuple
 import jax
 import numpy as np
 
-from jaxcal import field
+from jaxcal import field, flags
 from jaxcal import multipos as mp
 from jaxcal.constants import SENSORS
 from jaxcal.eval import seqsplit
 from jaxcal.eval.heldout import fold_errors, stream_segments
 from jaxcal.eval.scores import QualityRow, quality_row, score_cal
+from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     GSENS_KEY,
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -91,6 +93,25 @@ class OnlineOptions(NamedTuple):
     folds: int = 10
     residuals: str = "rests"
     g_sensitivity: bool = False
+
+    FLAGS = {
+        "kind": Flag("--kind", flags.choice("affine", "diag"), None, "filter model: affine (scale, cross-axis, bias) "
+                     "or diag (scale, bias)", "affine|diag", show_default="affine with seq ids, diag between rests"),
+        "sigma_acc": Flag("--sigma-acc", flags.real(0.0, 1.0), None, "accelerometer noise std of the filter, in g",
+                          "G", show_default="measured at the rests; 1.8e-5 with seq ids"),
+        "n_iter": Flag("--n-iter", flags.count(1, 100), None, "Gauss-Newton iterations per sequence", "N",
+                       show_default="4"),
+        "forgetting": Flag("--forgetting", flags.real(0.0, 1.0), None,
+                           "information forgetting factor per sequence, in (0, 1]", "L"),
+        "rest_pad": Flag("--rest-pad", flags.real(0.0, 1e6), None, "seconds of each rest streamed with the motions "
+                         "around it (recordings without seq ids)", "SEC"),
+        "folds": Flag("--folds", flags.count(2, 1000), None, "interleaved rest folds of the held-out figure", "K"),
+        "residuals": Flag("--residuals", flags.choice("rests", "all"), None, "between rests: the accelerometer "
+                          "residuals at the rests only, or at every sample (the simulation's recipe; motions carry "
+                          "translational acceleration)", "rests|all"),
+        **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window",
+                                        "g_sensitivity")},
+    }
 
 
 class RestSequences(NamedTuple):

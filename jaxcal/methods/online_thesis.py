@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS, SENSORS
 from jaxcal.methods.base import (
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -41,6 +42,8 @@ class OnlineThesisOptions(NamedTuple):
     """
 
     seed: int = 0
+
+    FLAGS = {"seed": SHARED_FLAGS["seed"]}
 
 
 class OnlineThesisState(NamedTuple):
