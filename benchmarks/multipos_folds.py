@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 
 from jaxcal import multipos as mp  # noqa: E402
 from jaxcal.methods import multipos as mm  # noqa: E402
-from jaxcal.multipos.heldout import _fold_scores  # noqa: E402
+from jaxcal.multipos.heldout import fold_scores  # noqa: E402
 from jaxcal.recording import load_recording  # noqa: E402
 
 XSENS = ROOT / "data" / "imu_tk_xsens_multipos" / "xsens.npz"
@@ -54,7 +54,7 @@ def measure(reps: int) -> dict:
         gw = jnp.asarray(1.0 - np.eye(P)[:, : P - 1])
         for name, batch in (("vmap_all", P), ("one_after_another", 1)):
             t0 = time.perf_counter()
-            compiled = _fold_scores.lower(d, config, aw, gw, batch).compile()
+            compiled = fold_scores.lower(d, config, aw, gw, batch).compile()
             compile_s = time.perf_counter() - t0
             ts = []
             for _ in range(reps):

@@ -50,7 +50,7 @@ import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
 from jaxcal import online_thesis as ot  # noqa: E402
-from jaxcal.online import OnlineHP, _online_scan_jit, make_filter, spec_sequences  # noqa: E402
+from jaxcal.online import OnlineHP, make_filter, online_scan_jit, spec_sequences  # noqa: E402
 from jaxcal.sensor import Diag  # noqa: E402
 from jaxcal.simulate.dataset2 import Dataset2Config, dataset2  # noqa: E402
 
@@ -116,7 +116,7 @@ def online_realtime_factor(reps: int) -> dict:
         dt = f64(d.dt)
         for kind in ("diag", "affine"):
             st0 = make_filter(kind).init(hp, jnp.float64)
-            c, fn = _compile(_online_scan_jit, st0, batch, dt, hp, kind=kind)
+            c, fn = _compile(online_scan_jit, st0, batch, dt, hp, kind=kind)
             jax.block_until_ready(fn(st0, batch, dt, hp))  # warm-up
             run_s, all_s = _median_time(lambda: fn(st0, batch, dt, hp), reps)  # noqa: B023
             out[kind] = {"compile_s": c, "run_s": run_s, "run_s_all": all_s, "realtime_factor": data_s / run_s}
@@ -159,7 +159,7 @@ def scan_vs_loop(reps: int) -> dict:
     m = acc.shape[0]
 
     # scan: the library's jitted function (no validation set), initial training of 0 epochs.
-    c_scan, scan_fn = _compile(ot._run_sequences, acc, gyr, dt, d.acc_spec, d.gyr_spec, hp, init_every=ot.INIT_EVERY)
+    c_scan, scan_fn = _compile(ot.run_sequences, acc, gyr, dt, d.acc_spec, d.gyr_spec, hp, init_every=ot.INIT_EVERY)
     scan_call = lambda: scan_fn(acc, gyr, dt, d.acc_spec, d.gyr_spec, hp)  # noqa: E731
     res = jax.block_until_ready(scan_call())
     t_scan, all_scan = _median_time(scan_call, reps)
@@ -193,7 +193,7 @@ def scan_vs_loop(reps: int) -> dict:
                zip(jax.tree.leaves((final[0], final[1])), jax.tree.leaves((res.acc_params, res.gyr_params)), strict=True))
     return {
         "dataset": f"Dataset 2 (default config): {m} sequences of {acc.shape[1]} samples, float32",
-        "what": "adaptive loop only (init_epochs = 0); scan: jaxcal.online_thesis._run_sequences; "
+        "what": "adaptive loop only (init_epochs = 0); scan: jaxcal.online_thesis.run_sequences; "
                 "loop: Python for over sequences of one jitted step (same calibrate/loss/_adam_steps functions)",
         "scan": {"compile_s": c_scan, "run_s": t_scan, "run_s_all": all_scan},
         "loop": {"compile_s": c_loop, "run_s": t_loop, "run_s_all": all_loop, "per_step_us": t_loop / m * 1e6},
@@ -335,7 +335,7 @@ def jax_vs_torch(reps: int) -> dict:
     m, n = acc.shape[:2]
 
     # JAX: the library's function, AOT-compiled (compile time apart), then timed.
-    c_jax, jax_fn = _compile(ot._run_sequences, acc, gyr, dt, d.acc_spec, d.gyr_spec, hp, init_every=ot.INIT_EVERY)
+    c_jax, jax_fn = _compile(ot.run_sequences, acc, gyr, dt, d.acc_spec, d.gyr_spec, hp, init_every=ot.INIT_EVERY)
     last: dict = {}
 
     def jax_call():
@@ -406,7 +406,7 @@ def jax_vs_torch(reps: int) -> dict:
     return {
         "dataset": f"Dataset 2 (default config): {m} sequences of {n} samples, float32",
         "what": "online-thesis adaptive loop only (init_epochs = 0; gyroscope then accelerometer Adam update per "
-                "sequence, default hyperparameters): jax = jaxcal.online_thesis._run_sequences (one jitted lax.scan); "
+                "sequence, default hyperparameters): jax = jaxcal.online_thesis.run_sequences (one jitted lax.scan); "
                 "torch = benchmarks/torch_online_thesis.adaptive_loop (eager torch.nn + torch.optim.Adam(fused=True), "
                 "Python for over sequences, R_tot as a pairwise tree of bmm), same initial weights and data",
         "torch_version": torch.__version__,

@@ -11,33 +11,49 @@ The user path, flat (``import jaxcal``)::
 
 Interchange types: :class:`Recording` (the only in-memory recording), :class:`LinearCal` (a linear
 calibration ``x = A (y - b)``), :class:`CalibrationModel` (a fitted method's state). Subpackages
-(``multipos``, ``online``, ``diagnose``, ``eval``, ``simulate``, ``methods``) are imported, so
-``jaxcal.multipos.fit_multipos`` works after ``import jaxcal``. ARCHITECTURE.md maps the modules.
+(``multipos``, ``online``, ``diagnose``, ``eval``, ``simulate``, ``methods``) and these names are
+imported on first use, so ``jaxcal.multipos.fit_multipos`` works after ``import jaxcal`` and
+``import jaxcal.cli`` stays light. ARCHITECTURE.md maps the modules.
 """
 
-__version__ = "0.1.0"
+import importlib
+from typing import Any
 
-from jaxcal import constants as constants
-from jaxcal import diagnose as diagnose
-from jaxcal import eval as eval  # the subpackage; left out of __all__ so `import *` keeps the builtin
-from jaxcal import methods as methods
-from jaxcal import multipos as multipos
-from jaxcal import offline as offline
-from jaxcal import online as online
-from jaxcal import online_thesis as online_thesis
-from jaxcal import rotation as rotation
-from jaxcal import sensor as sensor
-from jaxcal import simulate as simulate
-from jaxcal.methods import CalibrationModel as CalibrationModel
-from jaxcal.methods import apply as apply
-from jaxcal.methods import fit as fit
-from jaxcal.model_file import load_model as load_model
-from jaxcal.model_file import save_model as save_model
-from jaxcal.readers import read as read
-from jaxcal.recording import Recording as Recording
-from jaxcal.recording import load_recording as load_recording
-from jaxcal.recording import save_recording as save_recording
-from jaxcal.sensor import LinearCal as LinearCal
+from jaxcal._version import __version__ as __version__
+
+# Imported on first use (PEP 562), so that `import jaxcal.cli` (and `jaxcal --help`) does not load
+# jax, flax and optimistix: attribute -> the module that defines it.
+_SUBPACKAGES = ("constants", "diagnose", "eval", "methods", "multipos", "offline", "online", "online_thesis",
+                "rotation", "sensor", "simulate")
+_NAMES = {
+    "CalibrationModel": "jaxcal.methods",
+    "apply": "jaxcal.methods",
+    "fit": "jaxcal.methods",
+    "load_model": "jaxcal.model_file",
+    "save_model": "jaxcal.model_file",
+    "read": "jaxcal.formats",
+    "Recording": "jaxcal.recording",
+    "load_recording": "jaxcal.recording",
+    "save_recording": "jaxcal.recording",
+    "LinearCal": "jaxcal.sensor",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """The subpackage or user-path name ``name``, imported on first use (then a plain attribute)."""
+    if name in _SUBPACKAGES:
+        value = importlib.import_module(f"jaxcal.{name}")
+    elif name in _NAMES:
+        value = getattr(importlib.import_module(_NAMES[name]), name)
+    else:
+        raise AttributeError(f"module 'jaxcal' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_SUBPACKAGES, *_NAMES})
+
 
 __all__ = [
     "__version__",

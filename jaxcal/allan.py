@@ -11,7 +11,7 @@ m/s^2, or any unit ``u``); the parameters come back in that unit:
   (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)).
 
 An accelerometer log in g gives ``N``, ``K`` in g/sqrt(Hz), g/s/sqrt(Hz): multiply by
-:data:`jaxcal.constants.G0` before :func:`kalibr_imu_yaml`.
+:data:`jaxcal.constants.G0` before :func:`jaxcal.formats.noise_yaml.kalibr_imu_yaml`.
 
 Noise model (IEEE Std 952, per axis): ``AVAR(tau) = N^2/tau + (2 ln2/pi) B^2 + K^2 tau/3``, so the
 white line has ADEV slope -1/2 (``N = adev(tau) sqrt(tau)``), the flicker floor is ``0.664 B`` and
@@ -35,8 +35,6 @@ __all__ = [
     "edf_oadev",
     "adev_interval",
     "fit_noise",
-    "kalibr_imu_yaml",
-    "openvins_imu_chain",
     "simulate_imu_noise",
     "BIAS_INSTABILITY_FACTOR",
 ]
@@ -241,62 +239,6 @@ def fit_noise(
             K[j], K_lo[j], K_hi[j] = (np.sqrt(max(v**2 - white, 0.0) * g) for v in (adev[i, j], lo[0], hi[0]))
             tau_K[j] = taus[i]
     return NoiseParams(N, N_lo, N_hi, B, B_lo, B_hi, K, K_lo, K_hi, np.full(c, taus[i_n]), taus[i_b], tau_K, level)
-
-
-def _scalar(v) -> float:
-    """One number for a yaml key: the largest over axes (the conservative choice for a filter)."""
-    return float(np.max(np.asarray(v, dtype=np.float64)))
-
-
-def kalibr_imu_yaml(acc_noise: NoiseParams, gyr_noise: NoiseParams, rate_hz: float, topic: str) -> dict:
-    """Kalibr's ``imu.yaml`` as a dict (write it with ``yaml.safe_dump``).
-
-    Keys and units as on Kalibr's wiki page "IMU Noise Model": ``accelerometer_noise_density``
-    [m/s^2/sqrt(Hz)], ``accelerometer_random_walk`` [m/s^3/sqrt(Hz)], ``gyroscope_noise_density``
-    [rad/s/sqrt(Hz)], ``gyroscope_random_walk`` [rad/s^2/sqrt(Hz)] (continuous-time densities),
-    ``update_rate`` [Hz], ``rostopic``. ``acc_noise`` must come from m/s^2 data and ``gyr_noise``
-    from rad/s data; each key holds the largest value over the three axes. These are the sensor's
-    own (Allan) values, with no inflation for unmodelled effects.
-
-    Args:
-        acc_noise: :func:`fit_noise` of the accelerometer in m/s^2.
-        gyr_noise: :func:`fit_noise` of the gyroscope in rad/s.
-        rate_hz: IMU rate [Hz].
-        topic: the IMU's ROS topic.
-    """
-    return {
-        "accelerometer_noise_density": _scalar(acc_noise.N),
-        "accelerometer_random_walk": _scalar(acc_noise.K),
-        "gyroscope_noise_density": _scalar(gyr_noise.N),
-        "gyroscope_random_walk": _scalar(gyr_noise.K),
-        "update_rate": float(rate_hz),
-        "rostopic": str(topic),
-    }
-
-
-def openvins_imu_chain(acc_noise: NoiseParams, gyr_noise: NoiseParams, rate_hz: float, topic: str) -> dict:
-    """The noise part of OpenVINS's ``kalibr_imu_chain.yaml``: the Kalibr keys under ``imu0``.
-
-    OpenVINS reads the same four key names and units as Kalibr (its ``kalibr_imu_chain.yaml``),
-    plus ``T_i_b`` (identity here), ``time_offset`` (0) and ``update_rate``. The intrinsics keys
-    (``Tw``, ``Ta``, ``R_IMUtoGYRO``, ...) belong to a calibration export, not to noise.
-
-    Args:
-        acc_noise: :func:`fit_noise` of the accelerometer in m/s^2.
-        gyr_noise: :func:`fit_noise` of the gyroscope in rad/s.
-        rate_hz: IMU rate [Hz].
-        topic: the IMU's ROS topic.
-    """
-    k = kalibr_imu_yaml(acc_noise, gyr_noise, rate_hz, topic)
-    eye = [[1.0 if i == j else 0.0 for j in range(4)] for i in range(4)]
-    return {
-        "imu0": {
-            "T_i_b": eye,
-            **{key: k[key] for key in k if key not in ("update_rate",)},
-            "time_offset": 0.0,
-            "update_rate": k["update_rate"],
-        }
-    }
 
 
 def simulate_imu_noise(

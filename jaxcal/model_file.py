@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 from flax import traverse_util
 
-from jaxcal import __version__
+from jaxcal._version import __version__
 from jaxcal.constants import SENSORS
 from jaxcal.methods import CalibrationModel, ModelError, get, names
 from jaxcal.recording import NPZ_READ_ERRORS, atomic_output, read_npz_arrays

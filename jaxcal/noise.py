@@ -9,7 +9,7 @@ B and random walk K with intervals, and the Kalibr / OpenVINS noise keys. :func:
 returns a matplotlib ``Figure`` (built without pyplot: no global state).
 
 Combining axes: Kalibr and OpenVINS take one number per sensor; each key holds the largest value
-over the three axes (:func:`jaxcal.allan.kalibr_imu_yaml`), the conservative choice for a filter.
+over the three axes (:func:`jaxcal.formats.noise_yaml.kalibr_imu_yaml`), the conservative choice for a filter.
 Where the stretch is too short for the random-walk line to show (``K`` NaN on an axis), the
 number written is an upper bound instead: ``min over tau of adev_hi(tau) sqrt(3 / tau)`` (every
 Allan variance is at least ``K^2 tau / 3``; ``adev_hi`` is the upper end of the ADEV interval), and
@@ -29,12 +29,11 @@ from jaxcal.allan import (
     adev_interval,
     edf_oadev,
     fit_noise,
-    kalibr_imu_yaml,
-    openvins_imu_chain,
     overlapping_adev,
 )
 from jaxcal.arrays import Array
 from jaxcal.constants import G0
+from jaxcal.formats.noise_yaml import kalibr_imu_yaml, kalibr_yaml_text, openvins_imu_chain, openvins_yaml_text
 from jaxcal.recording import Recording, RecordingError
 
 __all__ = [
@@ -466,46 +465,6 @@ def summary_lines(rep: NoiseReport) -> list[str]:
             usual = f"{n / G0 * 1e6:.3g} ug/sqrt(Hz), {b / G0 * 1e6:.3g} ug, {kb}{k / G0 * 1e6:.3g} ug/s/sqrt(Hz)"
         lines.append(f"{s}: N {n:.3g} {u['N']}, B {b:.3g} {u['B']}, K {kb}{k:.3g} {u['K']} ({usual}; largest over axes)")
     return lines + [f"warning: {w}" for w in rep.warnings]
-
-
-def kalibr_yaml_text(d: dict, combine: str = "largest over the three axes", notes: tuple[str, ...] = ()) -> str:
-    """Kalibr's ``imu.yaml`` text (the layout of Kalibr's wiki example, with comments).
-
-    Args:
-        d: :func:`jaxcal.allan.kalibr_imu_yaml` dict.
-        combine: how the axes were combined (written as a comment).
-        notes: more one-line comments (e.g. the report's warnings).
-    """
-    extra = "".join(f"# note: {n}\n" for n in notes)
-    return (
-        "# Kalibr IMU noise parameters (https://github.com/ethz-asl/kalibr/wiki/IMU-Noise-Model), written by jaxcal noise\n"
-        f"# from the Allan deviation of a static stretch; each value is the {combine} (conservative).\n"
-        "# These are the sensor's own values: a filter on dynamic data usually needs them inflated (see noise.json / README).\n"
-        f"{extra}"
-        "\n#Accelerometers\n"
-        f"accelerometer_noise_density: {d['accelerometer_noise_density']!r}  #Noise density (continuous-time) [m/s^2/sqrt(Hz)]\n"
-        f"accelerometer_random_walk: {d['accelerometer_random_walk']!r}  #Bias random walk [m/s^3/sqrt(Hz)]\n"
-        "\n#Gyroscopes\n"
-        f"gyroscope_noise_density: {d['gyroscope_noise_density']!r}  #Noise density (continuous-time) [rad/s/sqrt(Hz)]\n"
-        f"gyroscope_random_walk: {d['gyroscope_random_walk']!r}  #Bias random walk [rad/s^2/sqrt(Hz)]\n"
-        "\n"
-        f"rostopic: {d['rostopic']}  #the IMU ROS topic\n"
-        f"update_rate: {d['update_rate']!r}  #Hz (for discretization of the values above)\n"
-    )
-
-
-def openvins_yaml_text(d: dict) -> str:
-    """OpenVINS's ``kalibr_imu_chain.yaml`` noise part: ``%YAML:1.0`` first (OpenVINS's OpenCV reader
-    expects it; a YAML reader skips that line), then ``imu0`` with Kalibr's noise keys.
-
-    Args:
-        d: :func:`jaxcal.allan.openvins_imu_chain` dict.
-    """
-    import yaml
-
-    head = ("%YAML:1.0\n# OpenVINS kalibr_imu_chain.yaml noise keys, written by jaxcal noise (same numbers and units as imu.yaml;\n"
-            "# largest over the three axes). T_i_b is identity and time_offset 0: no extrinsics are estimated here.\n")
-    return head + yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=200)
 
 
 def gauss_markov_adev(taus: Float[Array, " T"], sigma: float, tau_b: float) -> Float[np.ndarray, " T"]:

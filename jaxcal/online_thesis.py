@@ -77,6 +77,7 @@ __all__ = [
     "gyro_loss",
     "run_dataset",
     "run_online_thesis",
+    "run_sequences",
     "stack_hparams",
     "test_set_errors",
 ]
@@ -400,7 +401,10 @@ Returns:
     :class:`OnlineThesisResult` with ``e_g``, ``e_a`` of shape ``(n_train + 1,)``.
 """
 
-_run_sequences = jax.jit(
+#: ``run_sequences(acc, gyr, dt, acc_spec, gyr_spec, hp, init_every=...)``: the algorithm on
+#: equal-length raw sequences (M, N, 3) without labels (``e_g``, ``e_a`` NaN), one ``jit``; what
+#: :func:`fit_online_thesis_recording` runs once it has split the recording.
+run_sequences = jax.jit(
     lambda acc, gyr, dt, acc_spec, gyr_spec, hp, init_every: _online_thesis(
         acc, gyr, dt, acc_spec, gyr_spec, hp, None, init_every
     ),
@@ -443,7 +447,7 @@ def fit_online_thesis_recording(
     g = jnp.asarray(split_equal(gyr, seq), dtype=jnp.float32)
     hp = default_hparams(key) if hp is None else hp._replace(key=key)
     dt_arr = jnp.asarray(dt, dtype=jnp.float32)
-    return _run_sequences(a, g, dt_arr, acc_spec, gyr_spec, hp, init_every=init_every)
+    return run_sequences(a, g, dt_arr, acc_spec, gyr_spec, hp, init_every=init_every)
 
 
 def test_set_errors(

@@ -9,12 +9,14 @@ everywhere and says so where it reproduces the thesis.
 Every function here is pure, jit-able and vmappable, and exact to floating-point precision.
 ``exp_so3`` has finite gradients at the zero vector (the thesis's stationary samples have
 ``w = 0``; the textbook formula divides by the angle and yields NaN Jacobians there).
+:func:`slerp_pairs` is the one exception: numpy float64, for pose tracks read from files.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Float
 
 from jaxcal.arrays import Array
@@ -26,6 +28,7 @@ __all__ = [
     "rotation_from_rate",
     "quat_from_matrix",
     "matrix_from_quat",
+    "slerp_pairs",
     "log_so3",
     "compose",
     "total_rotation",
@@ -127,6 +130,37 @@ def matrix_from_quat(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
     )
 
 
+SLERP_SMALL_SIN = 1e-9
+"""Below this ``sin`` of the half angle between two quaternions :func:`slerp_pairs` blends linearly.
+
+In float64 the largest dot product below 1 is ``1 - 2**-53``, whose angle has ``sin`` 1.49e-8, so
+every threshold in (0, 1.49e-8] (e.g. 1e-8 or 1e-9) selects the same pairs: only exactly equal
+directions (``sin`` 0) take the linear branch."""
+
+
+def slerp_pairs(q0: Float[np.ndarray, "N 4"], q1: Float[np.ndarray, "N 4"], u: Float[np.ndarray, " N"]) -> Float[np.ndarray, "N 4"]:
+    """Row-wise spherical interpolation from ``q0`` to ``q1`` at fractions ``u``, along the shorter arc.
+
+    Numpy float64 (not traced): the readers' pose tracks go through it. ``q1`` rows on the far
+    hemisphere of ``q0`` are negated first (the same rotation); the result is renormalised.
+
+    Args:
+        q0: unit quaternions ``[w, x, y, z]`` at ``u = 0``.
+        q1: unit quaternions ``[w, x, y, z]`` at ``u = 1``.
+        u: fractions in [0, 1].
+    """
+    q1 = np.where(np.sum(q0 * q1, 1, keepdims=True) < 0, -q1, q1)
+    d = np.clip(np.sum(q0 * q1, 1, keepdims=True), -1.0, 1.0)
+    th = np.arccos(d)
+    s = np.sin(th)
+    small = s < SLERP_SMALL_SIN
+    u = u[:, None]
+    w0 = np.where(small, 1 - u, np.sin((1 - u) * th) / np.where(small, 1, s))
+    w1 = np.where(small, u, np.sin(u * th) / np.where(small, 1, s))
+    q = w0 * q0 + w1 * q1
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
 def log_so3(r: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:
     """Rotation vector of a rotation matrix (inverse of :func:`exp_so3`), angle in ``[0, pi]``."""
     q = quat_from_matrix(r)
@@ -159,7 +193,7 @@ def total_rotation(w: Float[Array, "N 3"], dt: float | Float[Array, ""]) -> Floa
 
 
 def propagate_specific_force(
-    f0: Float[Array, "3"], w: Float[Array, "N 3"], dt: float | Float[Array, ""]
+    f0: Float[Array, "3"], w: Float[Array, "N 3"], dt: float | Float[Array, ""], unroll: int = 1
 ) -> Float[Array, "N+1 3"]:
     """Body-frame specific force along a pure rotation: ``f_{n+1} = Exp(w_n dt)^T f_n``.
 
@@ -170,12 +204,15 @@ def propagate_specific_force(
         f0: (3,) body-frame specific force at the start (g).
         w: (N, 3) body rates (rad/s).
         dt: sample period (s).
+        unroll: (static) steps per iteration of the compiled loop (``lax.scan``'s ``unroll``): the
+            same products in the same order, so the result is bit-identical; fewer loop iterations
+            cost less where each step is a 3x3 product (:mod:`jaxcal.online` streams with 4).
     """
     def step(f, r):
         f_next = r.T @ f
         return f_next, f_next
 
-    _, fs = jax.lax.scan(step, f0, rotation_from_rate(w, dt))
+    _, fs = jax.lax.scan(step, f0, rotation_from_rate(w, dt), unroll=unroll)
     return jnp.concatenate([f0[None], fs], axis=0)
 
 

@@ -4,7 +4,8 @@ import allantools
 import numpy as np
 import pytest
 
-from jaxcal.allan import edf_oadev, fit_noise, kalibr_imu_yaml, openvins_imu_chain, overlapping_adev, simulate_imu_noise
+from jaxcal.allan import edf_oadev, fit_noise, overlapping_adev, simulate_imu_noise
+from jaxcal.formats.noise_yaml import kalibr_imu_yaml, openvins_imu_chain
 
 FS = 100.0
 N_TRUE = 1e-2  # white noise density [u/sqrt(Hz)]

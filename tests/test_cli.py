@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+from pathlib import Path
 from typing import NamedTuple
 
 import jax
@@ -215,6 +218,41 @@ def test_help_version_and_methods(capsys):
     code, out, _ = run(capsys, "methods")
     assert code == 0 and out.split("\n")[0].startswith("linear")
     assert [ln.split()[0] for ln in out.strip().split("\n")] == list(methods.REGISTRY)
+
+
+NUMERICAL_LIBRARIES = ("jax", "jaxlib", "flax", "optax", "optimistix", "equinox", "scipy", "matplotlib")
+
+
+def test_help_registers_every_command_without_numerical_libraries():
+    """``jaxcal --help`` (the full parser, every command registered) imports none of jax, flax,
+    optimistix, scipy: a command imports what it needs when it runs or when its own flags are built
+    (``calibrate --help`` reads the methods' defaults). A fresh interpreter, so nothing is preloaded."""
+    code = ("import sys\nfrom jaxcal.cli import COMMANDS, main\nassert main(['--help']) == 0\n"
+            "print(len(COMMANDS), sorted({m.split('.')[0] for m in sys.modules} & set(sys.argv[1:])))")
+    r = subprocess.run([sys.executable, "-c", code, *NUMERICAL_LIBRARIES], capture_output=True, text=True,
+                       cwd=Path(__file__).resolve().parents[1], timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip().splitlines()[-1] == f"{len(cli.COMMANDS)} []"
+
+
+def test_front_door_names_resolve_on_first_use():
+    """``import jaxcal`` imports its subpackages and user-path names on first use: each is the object
+    its defining module holds, ``from jaxcal import *`` gives all of ``__all__``, an unknown name is an
+    AttributeError."""
+    import jaxcal
+    from jaxcal import model_file, readers, recording, sensor
+
+    assert (jaxcal.fit, jaxcal.apply, jaxcal.CalibrationModel) == (methods.fit, methods.apply, methods.CalibrationModel)
+    assert (jaxcal.load_model, jaxcal.save_model) == (model_file.load_model, model_file.save_model)
+    assert (jaxcal.Recording, jaxcal.load_recording, jaxcal.save_recording, jaxcal.read, jaxcal.LinearCal) == (
+        recording.Recording, recording.load_recording, recording.save_recording, readers.read, sensor.LinearCal)
+    assert callable(jaxcal.multipos.fit_multipos) and callable(jaxcal.diagnose.diagnose_recording)
+    assert jaxcal.eval.__name__ == "jaxcal.eval" and {"diagnose", "eval", "LinearCal"} <= set(dir(jaxcal))
+    star: dict = {}
+    exec("from jaxcal import *", star)
+    assert set(jaxcal.__all__) <= set(star)
+    with pytest.raises(AttributeError):
+        jaxcal.no_such_name  # noqa: B018
 
 
 @pytest.mark.parametrize("name", list(methods.REGISTRY))

@@ -579,10 +579,11 @@ IMPORT_REL_TOL = 1e-14
 _IMPORT_SUFFIX = {"imucal": ".json", "json": ".json", "kalibr": ".yaml", "openvins": ".yaml"}
 
 
-def test_import_formats_of_the_cli_are_the_library_ones():
-    from jaxcal.cli.export import _IMPORT_FORMATS
-
-    assert _IMPORT_FORMATS == IMPORT_FORMATS
+def test_import_formats_of_the_cli_are_the_library_ones(tmp_path, capsys):
+    """``import-model`` offers the registry's importers (``jaxcal.formats.importers``), and no export-only format."""
+    assert IMPORT_FORMATS == ("imucal", "json", "kalibr", "openvins")
+    code, _, err = _run(capsys, "import-model", "c", tmp_path / "x.h", "--out", tmp_path / "m.npz")
+    assert code == 2 and "invalid choice: 'c'" in err and all(repr(f) in err for f in IMPORT_FORMATS), err
 
 
 @pytest.mark.parametrize("fmt", list(IMPORT_FORMATS))

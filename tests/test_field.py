@@ -145,14 +145,14 @@ def test_contradiction_closed_forms():
 def test_calibrate_refuses_a_contradicted_model_unless_forced(tmp_path, capsys, monkeypatch):
     """The CLI's wiring: exit 2 and nothing written when :func:`contradiction` objects; written,
     with a warning and the reason in the metadata, under ``--force``."""
-    from jaxcal.cli import calibrate as cc
     from jaxcal.cli import main
+    from jaxcal.methods import summary
     from jaxcal.model_file import load_model
     from jaxcal.recording import save_recording
 
     rec = _session(n_poses=12, seed=1)
     save_recording(rec, tmp_path / "r.npz")
-    monkeypatch.setattr(cc, "contradiction", lambda desc: "made up for the test")
+    monkeypatch.setattr(summary, "contradiction", lambda desc: "made up for the test")
     out = tmp_path / "m.npz"
     code = main(["calibrate", "--method", "multipos", str(tmp_path / "r.npz"), "--out", str(out), "-q",
                  "--no-held-out"])

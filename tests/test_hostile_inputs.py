@@ -350,6 +350,7 @@ def test_ctrl_c_while_writing_a_model_keeps_the_earlier_one(base, tmp_path, caps
 def test_simulate_failing_midway_leaves_no_folder(tmp_path, capsys, monkeypatch):
     from jaxcal.cli import simulate as cli
     from jaxcal.recording import Recording, RecordingError
+    from jaxcal.simulate import recordings as sim_recordings
 
     def recs(seed, config, labels):
         r = Recording(t=np.arange(3) / FS, acc=np.zeros((3, 3), np.int32))
@@ -363,7 +364,7 @@ def test_simulate_failing_midway_leaves_no_folder(tmp_path, capsys, monkeypatch)
             raise RecordingError(f"{path}: cannot write (disk full)")
         Path(path).write_text("partial")
 
-    monkeypatch.setattr(cli, "dataset2_recordings", recs)
+    monkeypatch.setattr(sim_recordings, "dataset2_recordings", recs)
     monkeypatch.setattr(cli, "save_recording", save)
     refused(capsys, ["simulate", "dataset2", "--out", tmp_path / "sim" / "deep"],
             absent=(tmp_path / "sim",), needles=("disk full",))

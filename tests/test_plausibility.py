@@ -278,18 +278,17 @@ def test_noise_density_against_the_stretch_spread():
 # ----------------------------------------------------------------------------- output folders
 
 
-def test_output_folders_get_the_usual_mode(tmp_path):
-    """``--out DIR`` was made 0700 (mkdtemp's mode): others on a shared machine could not read it."""
-    from jaxcal.cli.core import _output_dir
-
+def test_output_folders_get_the_usual_mode(tmp_path, capsys):
+    """``--out DIR`` was made 0700 (mkdtemp's mode): others on a shared machine could not read it.
+    Through a command that writes a folder (a tiny ``simulate dataset2``)."""
     old = os.umask(0o022)
     try:
-        with _output_dir(str(tmp_path / "o")) as d:
-            (d / "f.txt").write_text("x")
+        code, _, err = run(capsys, "simulate", "dataset2", "--out", tmp_path / "o", "--n-train", "1", "--n-val", "1")
     finally:
         os.umask(old)
+    assert code == 0, err
     assert stat.S_IMODE((tmp_path / "o").stat().st_mode) == 0o755
-    assert (tmp_path / "o" / "f.txt").read_text() == "x"
+    assert (tmp_path / "o" / "truth.json").is_file()
 
 
 # ----------------------------------------------------------------------------- imports: YAML, shapes, rotations
@@ -574,14 +573,14 @@ def test_sweep_lock_and_a_sweep_whose_every_run_diverges(tmp_path, capsys):
     checkpoint, no folder, the lock released."""
     import json
 
-    from jaxcal.cli.sweep import _lock, _lock_path
+    from jaxcal.cli.sweep import sweep_lock, sweep_lock_path
 
     (tmp_path / "s.json").write_text(json.dumps({"grid": {"acc_lr": [1e30, 1e35]}, "fixed": {"gyr_lr": 1e30, "init_lr": 1e30},
                                                  "dataset": {"n_train": 4, "n_val": 2, "n_samples": 11, "n_test_acc": 5,
                                                              "n_test_gyr": 5}}))
     out = tmp_path / "out"
-    f = _lock_path(out)
-    with _lock(out):  # this process holds it; a second writer must be refused: fake one with our parent's pid
+    f = sweep_lock_path(out)
+    with sweep_lock(out):  # this process holds it; a second writer must be refused: fake one with our parent's pid
         assert f.read_text() == str(os.getpid())
         f.write_text(str(os.getppid()))  # a live process that is not us
         refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,), needles=("another sweep", "process"))

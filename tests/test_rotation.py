@@ -153,3 +153,18 @@ def test_specific_force_follows_physical_convention(x64):
     # After a +90 deg roll about body x, body y points up: the reading moves to +1 g on y.
     f_roll = rot.propagate_specific_force(up, jnp.array([[np.pi / 2, 0.0, 0.0]]), 1.0)
     np.testing.assert_allclose(np.asarray(f_roll[-1]), [0.0, 1.0, 0.0], atol=1e-12)
+
+
+def test_slerp_pairs_follows_the_rotation_about_the_axis():
+    """Closed form: from the identity to a turn of theta about an axis, slerp at u is the turn u theta
+    about it; the far-hemisphere sign of q1 is the same rotation; equal quaternions give q0 exactly."""
+    axis = np.array([1.0, 2.0, -2.0]) / 3.0
+    u = np.linspace(0.0, 1.0, 11)
+    for theta in (1e-9, 1e-3, 1.0, 3.0):
+        q0 = np.tile([1.0, 0.0, 0.0, 0.0], (u.size, 1))
+        q1 = np.tile(np.r_[np.cos(theta / 2), np.sin(theta / 2) * axis], (u.size, 1))
+        want = np.c_[np.cos(u * theta / 2), np.sin(u * theta / 2)[:, None] * axis]
+        np.testing.assert_allclose(rot.slerp_pairs(q0, q1, u), want, atol=1e-15)
+        np.testing.assert_allclose(rot.slerp_pairs(q0, -q1, u), want, atol=1e-15)
+    q = np.tile(np.array([0.5, 0.5, -0.5, 0.5]), (u.size, 1))
+    np.testing.assert_array_equal(rot.slerp_pairs(q, q, u), q)

@@ -2,7 +2,7 @@
 
 ``benchmarks/run.py``'s ``jax_vs_torch`` ratio is meaningful only if both sides do the same computation:
 here each torch piece is checked against jaxcal's (float32, same inputs), and the whole adaptive loop
-against ``jaxcal.online_thesis._run_sequences`` from the same initial weights.
+against ``jaxcal.online_thesis.run_sequences`` from the same initial weights.
 """
 
 from __future__ import annotations
@@ -87,7 +87,7 @@ def test_adaptive_loop_matches_run_sequences(data, how):
     hp = ot.default_hparams(jax.random.PRNGKey(1), init_epochs=0, gyr_steps=3, acc_steps=3)
     dt = jnp.asarray(data.dt, jnp.float32)
     acc, gyr = data.train.acc, data.train.gyr
-    res = ot._run_sequences(acc, gyr, dt, data.acc_spec, data.gyr_spec, hp, init_every=ot.INIT_EVERY)
+    res = ot.run_sequences(acc, gyr, dt, data.acc_spec, data.gyr_spec, hp, init_every=ot.INIT_EVERY)
     k_a, k_g = jax.random.split(hp.key)
     net_a = tot.mlp_from_flax(ot._init_params(k_a, hp.acc_init_scale))
     net_g = tot.mlp_from_flax(ot._init_params(k_g, hp.gyr_init_scale))

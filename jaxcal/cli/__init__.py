@@ -10,14 +10,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from jaxcal import __version__, readers
-from jaxcal.cli import calibrate, diagnose, export, importer, noise, simulate, sweep  # noqa: F401 - they register their commands
+from jaxcal._version import __version__
+from jaxcal.cli import calibrate, crop, diagnose, export, importer, noise, simulate, sweep  # noqa: F401 - they register their commands
 from jaxcal.cli.calibrate import OPTION_FLAGS
-from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _Parser, register_command
-from jaxcal.methods import ModelError
+from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _LazyParser, _Parser, register_command
 from jaxcal.recording import RecordingError
 
 __all__ = ["COMMANDS", "NO_CACHE_ENV", "OPTION_FLAGS", "PROG", "Command", "UsageError", "build_parser", "cache_dir", "main",
@@ -35,14 +34,23 @@ def build_parser() -> argparse.ArgumentParser:
         "jaxcal apply lin.npz d2/test_acc.npz --out cal.npz",
     )
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_LazyParser)
     sub.required = True
     for name, cmd in COMMANDS.items():
-        p = sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help)
+        sub.add_parser(name, help=cmd.help, description=cmd.description or cmd.help, build=_arguments_of(cmd))
+    return parser
+
+
+def _arguments_of(cmd: Command) -> Callable[[argparse.ArgumentParser], None]:
+    """What adds ``cmd``'s arguments to its parser, run when that parser is first used: the flags of
+    one command may need heavy imports (e.g. ``calibrate``'s defaults come from the methods)."""
+
+    def build(p: argparse.ArgumentParser) -> None:
         cmd.add_arguments(p)
         p.add_argument("--no-cache", action="store_true", default=argparse.SUPPRESS,
                        help=f"do not use the persistent compilation cache ({NO_CACHE_ENV}=1 does the same)")
-    return parser
+
+    return build
 
 
 NO_CACHE_ENV = "JAXCAL_NO_CACHE"
@@ -79,10 +87,16 @@ def _use_cache(args: argparse.Namespace) -> None:
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", CACHE_MIN_ENTRY_BYTES)
 
 
-def _bad_input_errors() -> tuple[type[BaseException], ...]:
-    """The exceptions that mean bad input (exit status 2, one line): usage, recording, model and
-    reader errors."""
-    return (UsageError, RecordingError, ModelError, readers.ReaderError)
+def _is_bad_input(e: BaseException) -> bool:
+    """Whether ``e`` means bad input (exit status 2, one line): a usage, recording, model or reader
+    error. The last two are imported only here, when an exception is being judged, not on every
+    start."""
+    if isinstance(e, (UsageError, RecordingError)):
+        return True
+    from jaxcal.formats import ReaderError
+    from jaxcal.methods.base import ModelError
+
+    return isinstance(e, (ModelError, ReaderError))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -99,12 +113,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             return int(e.code or 0)
         _use_cache(args)
         return COMMANDS[args.command].run(args)
-    except _bad_input_errors() as e:
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted (no partial output left behind)", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if not _is_bad_input(e):
+            raise
         msg = " ".join(str(e).split())
         prefix = "" if msg.startswith(PROG) else f"{PROG}: error: "
         print(f"{prefix}{msg}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted (no partial output left behind)", file=sys.stderr)
-        return 130
 

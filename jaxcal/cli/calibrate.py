@@ -10,13 +10,12 @@ from typing import Any
 
 import numpy as np
 
-from jaxcal import methods
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _progress, register_command
 from jaxcal.flags import Flag
-from jaxcal.methods import CalibrationModel, ModelError
-from jaxcal.methods.summary import contradiction, describe, summary_lines
-from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import atomic_output, load_recording
+
+# The methods (jax, flax, optimistix) are imported inside the functions that use them, so that
+# registering these commands costs nothing (`jaxcal --help`, other commands).
 
 __all__ = ["OPTION_FLAGS", "Flag"]
 
@@ -31,6 +30,8 @@ class _RegistryFlags(Mapping[str, Flag]):
     (``tests/test_methods_contract.py`` checks it); its first declaration is used."""
 
     def _table(self) -> dict[str, Flag]:
+        from jaxcal import methods
+
         out: dict[str, Flag] = {}
         for m in methods.REGISTRY.values():
             declared = getattr(m.options, "FLAGS", {})
@@ -55,11 +56,15 @@ OPTION_FLAGS: Mapping[str, Flag] = _RegistryFlags()
 def _option_defaults() -> dict[str, Any]:
     """Option field -> default, over every registered method's options type (a field that several
     types share has one default; ``tests/test_methods_contract.py`` checks it)."""
+    from jaxcal import methods
+
     return {f: d for m in methods.REGISTRY.values() for f, d in m.options._field_defaults.items()}
 
 
 def _used_by(field: str) -> str:
     """The registered methods whose options have ``field``, e.g. ``"nn and online-thesis"``."""
+    from jaxcal import methods
+
     return " and ".join(m.name for m in methods.REGISTRY.values() if field in m.options._fields)
 
 
@@ -71,6 +76,8 @@ def _default_text(field: str, spec: Flag, defaults: dict[str, Any]) -> str:
 
 
 def _add_calibrate(p: argparse.ArgumentParser) -> None:
+    from jaxcal import methods
+
     p.add_argument("recording", metavar="RECORDING", help="recording (.npz or .csv; see CONVENTIONS.md)")
     p.add_argument(
         "--method",
@@ -104,6 +111,8 @@ def _method_options(args: argparse.Namespace) -> Any:
     """The options of ``args.method`` from the flags given (the others keep the options type's
     defaults). Every problem (a value that does not parse, a flag of another method) is collected
     and reported at once, naming the flags, as one usage error."""
+    from jaxcal import methods
+
     kind = methods.get(args.method).options
     values, errors = {}, []
     for field, spec in dict(OPTION_FLAGS).items():
@@ -125,6 +134,11 @@ def _method_options(args: argparse.Namespace) -> Any:
 
 
 def _run_calibrate(args: argparse.Namespace) -> int:
+    from jaxcal import methods
+    from jaxcal.methods import CalibrationModel, ModelError
+    from jaxcal.methods.summary import contradiction, describe, summary_lines
+    from jaxcal.model_file import save_model
+
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")
     _check_out_file(args.out, [args.recording])
@@ -170,13 +184,15 @@ def _add_apply(p: argparse.ArgumentParser) -> None:
 
 
 def _run_apply(args: argparse.Namespace) -> int:
+    from jaxcal.methods import ModelError
+    from jaxcal.model_file import load_model
+    from jaxcal.plausible import apply_range_problems
+
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
     _check_out_file(args.out, [args.model, args.recording])
     model = load_model(args.model)
     rec = load_recording(args.recording)
-    from jaxcal.plausible import apply_range_problems
-
     problems = apply_range_problems(model.method, model.state, model.meta, rec)
     if problems and not args.allow_extrapolation:
         raise UsageError(f"{args.model} on {args.recording}: {problems[0]} (--allow-extrapolation applies it anyway)")
@@ -204,6 +220,8 @@ def _add_methods(p: argparse.ArgumentParser) -> None:
 
 
 def _run_methods(args: argparse.Namespace) -> int:
+    from jaxcal import methods
+
     for name, m in methods.REGISTRY.items():
         print(f"{name:14s} {m.doc}")
     return 0

@@ -63,6 +63,33 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: error: {message}")
 
 
+class _LazyParser(_Parser):
+    """A subcommand's parser whose arguments are added on its first use (parsing, help or usage), by
+    ``build``: building every command's flags would import what each needs (the methods, jax), and
+    ``jaxcal --help`` or another command needs none of it."""
+
+    def __init__(self, *args, build: Callable[[argparse.ArgumentParser], None] | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._build = build
+
+    def _built(self) -> None:
+        build, self._build = self._build, None
+        if build is not None:
+            build(self)
+
+    def parse_known_args(self, args=None, namespace=None):  # noqa: D102 - argparse API
+        self._built()
+        return super().parse_known_args(args, namespace)
+
+    def format_usage(self) -> str:  # noqa: D102 - argparse API
+        self._built()
+        return super().format_usage()
+
+    def format_help(self) -> str:  # noqa: D102 - argparse API
+        self._built()
+        return super().format_help()
+
+
 class Command(NamedTuple):
     """A subcommand: one-line help, a function adding its arguments, and its handler.
 

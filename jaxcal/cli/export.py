@@ -1,27 +1,21 @@
 """``jaxcal export``: a linear model as JSON, a C header, Kalibr/OpenVINS intrinsics or imucal's
 CalibrationInfo; ``jaxcal import-model``: such a file (imucal, json, kalibr, openvins) back as a
-``linear`` model."""
+``linear`` model. Both dispatch through :data:`jaxcal.formats.REGISTRY` (its exporters and importers)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 from pathlib import Path
 
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, register_command
-from jaxcal.methods import ModelError
-from jaxcal.model_file import load_model, save_model
 from jaxcal.recording import atomic_output
 
 __all__: list[str] = []
 
 
 # ----------------------------------------------------------------------------- export
-
-_EXPORT_SUFFIX = {"json": ".json", "c": ".h", "kalibr": ".yaml", "openvins": ".yaml", "imucal": ".json"}
-
 
 def _c_identifier(text: str) -> str:
     if not (text.isascii() and text.replace("_", "a").isalnum() and not text[0].isdigit()):
@@ -30,8 +24,10 @@ def _c_identifier(text: str) -> str:
 
 
 def _add_export(p: argparse.ArgumentParser) -> None:
+    from jaxcal import formats  # imported when the command is parsed, not when it registers
+
     p.add_argument("model", metavar="MODEL", help="linear model file written by `jaxcal calibrate` (linear, multipos, online)")
-    p.add_argument("--format", required=True, choices=tuple(_EXPORT_SUFFIX),
+    p.add_argument("--format", required=True, choices=formats.exporters(),
                    help="json: plain JSON with the apply equation written out; c: dependency-free C99 header; "
                    "kalibr: Kalibr scale-misalignment IMU intrinsics (YAML); openvins: OpenVINS kalibr_imu_chain.yaml "
                    "intrinsics; imucal: imucal's FerrarisCalibrationInfo JSON (kalibr, openvins and imucal need acc and gyr)")
@@ -46,61 +42,48 @@ def _add_export(p: argparse.ArgumentParser) -> None:
 
 def _read_noise(path: str) -> dict:
     """The checked noise keys of a Kalibr imu.yaml file (UsageError naming the file otherwise)."""
-    import yaml
-
-    from jaxcal import export
-    from jaxcal.safe_yaml import load_yaml
+    from jaxcal.formats.noise_yaml import read_noise_yaml
 
     try:
         text = Path(path).read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as e:
         raise UsageError(f"--noise {path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    if text.startswith("%YAML:"):
-        text = text.split("\n", 1)[1] if "\n" in text else ""
     try:
-        return export.noise_fields(load_yaml(text))
-    except yaml.YAMLError as e:
-        raise UsageError(f"--noise {path}: not valid YAML ({str(e).strip().splitlines()[0]})") from None
+        return read_noise_yaml(text)
     except ValueError as e:
         raise UsageError(f"--noise {path}: {e}") from None
 
 
 def _run_export(args: argparse.Namespace) -> int:
-    from jaxcal import export  # imported on use, like diagnose
+    from jaxcal import formats
+    from jaxcal.formats.linear_io import EQUATION
+    from jaxcal.methods import ModelError
+    from jaxcal.model_file import load_model
 
-    suffix = _EXPORT_SUFFIX[args.format]
-    if not args.out.lower().endswith(suffix):
-        raise UsageError(f"--out {args.out}: the {args.format} export is written as {suffix}")
-    if args.noise is not None and args.format not in ("kalibr", "openvins"):
-        raise UsageError(f"--noise goes with --format kalibr or openvins, not {args.format}")
+    fmt = formats.get(args.format)
+    if not args.out.lower().endswith(fmt.suffix):
+        raise UsageError(f"--out {args.out}: the {args.format} export is written as {fmt.suffix}")
+    if args.noise is not None and "noise" not in fmt.export_options:
+        takes = " or ".join(f.name for f in formats.REGISTRY.values() if "noise" in f.export_options)
+        raise UsageError(f"--noise goes with --format {takes}, not {args.format}")
     _check_out_file(args.out, [args.model] + ([args.noise] if args.noise else []))
     noise = _read_noise(args.noise) if args.noise is not None else None
     model = load_model(args.model)
-    note = ""
     try:
-        if args.format == "json":
-            text = json.dumps(export.to_json(model), indent=2) + "\n"
-        elif args.format == "imucal":
-            text = json.dumps(export.to_imucal(model), indent=4) + "\n"
-        elif args.format in ("kalibr", "openvins"):
-            to_yaml = export.to_kalibr if args.format == "kalibr" else export.to_openvins
-            d = to_yaml(model, noise)
-            text = export.yaml_document(args.format, d)
-            missing = export.missing_noise_keys(d)
-            if missing and noise is None:
-                note = f"; no IMU noise keys ({', '.join(missing)}): pass --noise imu.yaml (e.g. from `{PROG} noise`)"
-            elif missing:
-                note = f"; --noise {args.noise} has no {', '.join(missing)}"
-        else:
-            text = export.to_c_header(model, args.name)
+        exported = formats.export(args.format, model, formats.ExportOptions(args.name, noise))
     except ModelError as e:  # a non-linear model, a missing sensor, a singular matrix: say which file
         raise ModelError(f"{args.model}: {e}") from None
+    missing, note = exported.missing_noise, ""
+    if missing and noise is None:
+        note = f"; no IMU noise keys ({', '.join(missing)}): pass --noise imu.yaml (e.g. from `{PROG} noise`)"
+    elif missing:
+        note = f"; --noise {args.noise} has no {', '.join(missing)}"
     try:
         with atomic_output(args.out) as tmp, open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
+            fh.write(exported.text)
     except OSError as e:
         raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
-    print(f"{PROG}: wrote {args.out} ({args.format}: {model.method} model, {export.EQUATION} for "
+    print(f"{PROG}: wrote {args.out} ({args.format}: {model.method} model, {EQUATION} for "
           f"{', '.join(model.sensors)}){note}", file=sys.stderr)
     return 0
 
@@ -126,11 +109,10 @@ register_command(
 # ----------------------------------------------------------------------------- import-model
 
 
-_IMPORT_FORMATS = ("imucal", "json", "kalibr", "openvins")  # jaxcal.export.IMPORT_FORMATS (imported on use)
-
-
 def _add_import_model(p: argparse.ArgumentParser) -> None:
-    p.add_argument("format", metavar="FORMAT", choices=_IMPORT_FORMATS,
+    from jaxcal import formats
+
+    p.add_argument("format", metavar="FORMAT", choices=formats.importers(),
                    help="imucal: imucal's CalibrationInfo JSON (Ferraris, Turntable; written by imucal or by "
                    "`jaxcal export --format imucal`); json: `jaxcal export --format json`; kalibr, openvins: the YAML "
                    "`jaxcal export --format kalibr|openvins` writes")
@@ -142,7 +124,10 @@ def _add_import_model(p: argparse.ArgumentParser) -> None:
 
 
 def _run_import_model(args: argparse.Namespace) -> int:
-    from jaxcal import export
+    from jaxcal import formats
+    from jaxcal.formats.linear_io import g_sensitivity
+    from jaxcal.methods import ModelError
+    from jaxcal.model_file import save_model
 
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")
@@ -152,7 +137,7 @@ def _run_import_model(args: argparse.Namespace) -> int:
     except (OSError, UnicodeDecodeError) as e:
         raise UsageError(f"{args.file}: cannot read ({getattr(e, 'strerror', None) or e})") from None
     try:
-        imported = export.import_model(args.format, export.read_document(args.format, text), args.drop_g_sensitivity)
+        imported = formats.import_model(args.format, formats.read_document(args.format, text), args.drop_g_sensitivity)
     except ModelError as e:
         raise ModelError(f"{args.file}: {e}") from None
     model = imported.model
@@ -160,7 +145,7 @@ def _run_import_model(args: argparse.Namespace) -> int:
     save_model(model, args.out)
     notes = "".join(f"; {n}" for n in imported.notes)
     units = ", ".join(f"{s} {model.meta['units'][s]}" for s in model.sensors)
-    if export.g_sensitivity(model) is not None:
+    if g_sensitivity(model) is not None:
         notes += "; with the gyroscope g-sensitivity (state/gyr/G)"
     print(f"{PROG}: wrote {args.out} (linear model from {args.format} {args.file}; input units {units}){notes}",
           file=sys.stderr)

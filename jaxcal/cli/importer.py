@@ -1,13 +1,12 @@
-"""``jaxcal import``: public IMU formats to a jaxcal recording."""
+"""``jaxcal import``: public IMU formats to a jaxcal recording (each a reader of :data:`jaxcal.formats.REGISTRY`)."""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from jaxcal import readers, rosbag
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _real, register_command
-from jaxcal.recording import Recording, save_recording
+from jaxcal.recording import save_recording
 
 __all__: list[str] = []
 
@@ -26,6 +25,8 @@ def _mapping(text: str) -> dict[str, str]:
 
 
 def _add_import(p: argparse.ArgumentParser) -> None:
+    from jaxcal.formats.rosbag import TIME_SOURCES  # imported when the command is parsed, not when it registers
+
     p.add_argument(
         "format",
         metavar="FORMAT",
@@ -51,44 +52,54 @@ def _add_import(p: argparse.ArgumentParser) -> None:
                    "Odometry or tf2_msgs/TFMessage)")
     p.add_argument("--pose-frame", default=None, metavar="FRAME",
                    help="rosbag: child_frame_id of the body's transform (required for a tf topic)")
-    p.add_argument("--time", choices=rosbag.TIME_SOURCES, default=None,
+    p.add_argument("--time", choices=TIME_SOURCES, default=None,
                    help="rosbag: sample times from message header stamps (default) or the bag's receive time")
 
 
-_ROSBAG_FLAGS = ("imu_topic", "pose_topic", "pose_frame", "time")
+_OPTIONS = ("fs", "acc_unit", "gyr_unit", "time_unit", "columns", "units", "skip_rows", "imu_topic", "pose_topic",
+            "pose_frame", "time")
+"""The reader options the command has flags for (``--fs`` -> ``fs``, ...)."""
 
 
-def _flags(names: dict[str, str] | tuple[str, ...], args: argparse.Namespace) -> list[str]:
+def _flags(names: tuple[str, ...] | list[str], args: argparse.Namespace) -> list[str]:
     """The given (non-default) options among ``names``, as flags."""
     return ["--" + a.replace("_", "-") for a in names if getattr(args, a) is not None]
 
 
-def _read_rosbag(args: argparse.Namespace, csv_flags: list[str]) -> Recording:
-    if csv_flags:
-        raise UsageError(f"format 'rosbag' does not take {', '.join(csv_flags)}")
-    if args.imu_topic is None:
-        raise UsageError("format 'rosbag' needs --imu-topic TOPIC (a sensor_msgs/msg/Imu topic)")
-    return rosbag.read_rosbag(args.files, args.imu_topic, pose_topic=args.pose_topic, pose_frame=args.pose_frame,
-                              time=args.time or "header")
+def _check_reader(args: argparse.Namespace) -> None:
+    """``args.format`` is a reader, and the options given fit it: options that only some reader takes
+    (:attr:`~jaxcal.formats.base.Format.own_options`) go with that reader alone, and the options it
+    ``needs`` are given."""
+    from jaxcal import formats
+
+    fmt = formats.get(args.format)
+    if fmt is None or fmt.read is None:
+        raise UsageError(f"unknown format {args.format!r}; expected one of {list(formats.readers())}")
+    owners = {o: f.name for f in formats.REGISTRY.values() for o in f.own_options}
+    foreign = [o for o in owners if o not in fmt.own_options]
+    if _flags(foreign, args):
+        owner = " / ".join(dict.fromkeys(owners[o] for o in foreign if getattr(args, o) is not None))
+        raise UsageError(f"{', '.join(_flags(foreign, args))}: only for the {owner} format, not {args.format!r}")
+    if fmt.own_options:  # a reader with options of its own takes no others
+        others = [o for o in _OPTIONS if o not in owners]
+        if _flags(others, args):
+            raise UsageError(f"format {fmt.name!r} does not take {', '.join(_flags(others, args))}")
+    for opt, what in (fmt.needs or {}).items():
+        if getattr(args, opt) is None:
+            raise UsageError(f"format {fmt.name!r} needs --{opt.replace('_', '-')} {what}")
 
 
 def _run_import(args: argparse.Namespace) -> int:
+    from jaxcal import formats
+
     if not args.out.lower().endswith((".npz", ".csv")):
         raise UsageError(f"--out {args.out}: recordings are written as .npz or .csv")
     _check_out_file(args.out, args.files)
-    names = {"fs": "fs", "acc_unit": "acc_unit", "gyr_unit": "gyr_unit", "time_unit": "time_unit",
-             "columns": "columns", "units": "units", "skip_rows": "skip_rows"}
-    options = {k: getattr(args, a) for a, k in names.items() if getattr(args, a) is not None}
-    if args.format not in readers.FORMATS + ("rosbag",):
-        raise UsageError(f"unknown format {args.format!r}; expected one of {[*readers.FORMATS, 'rosbag']}")
-    if args.format != "rosbag" and _flags(_ROSBAG_FLAGS, args):
-        raise UsageError(f"{', '.join(_flags(_ROSBAG_FLAGS, args))}: only for the rosbag format, not {args.format!r}")
+    _check_reader(args)
+    options = {k: getattr(args, k) for k in _OPTIONS if getattr(args, k) is not None}
     try:
-        if args.format == "rosbag":
-            rec = _read_rosbag(args, _flags(names, args))
-        else:
-            rec = readers.read(args.format, args.files, **options)
-    except readers.ReaderError as e:
+        rec = formats.read(args.format, args.files, **options)
+    except formats.ReaderError as e:
         raise UsageError(str(e)) from None
     except TypeError as e:  # an option this format does not take
         given = ", ".join("--" + k.replace("_", "-") for k in options) or "none"
@@ -103,6 +114,6 @@ register_command(
         "convert a public IMU format to a jaxcal recording",
         _add_import,
         _run_import,
-        "Read FILE(s) in FORMAT (jaxcal.readers) and write a recording per CONVENTIONS.md.",
+        "Read FILE(s) in FORMAT (jaxcal.formats) and write a recording per CONVENTIONS.md.",
     ),
 )

@@ -10,8 +10,6 @@ from typing import Any
 
 from jaxcal.cli.core import MAX_SIM_SEQUENCES, PROG, Command, _count, _output_dir, _Parser, _seed, register_command
 from jaxcal.recording import Recording, save_recording
-from jaxcal.simulate import Dataset2Config
-from jaxcal.simulate.recordings import dataset1_recordings, dataset2_recordings
 
 __all__: list[str] = []
 
@@ -57,6 +55,9 @@ def _write_all(d: Path, recs: dict[str, Recording], truth: dict[str, Any], fmt: 
 
 
 def _run_simulate(args: argparse.Namespace) -> int:
+    from jaxcal.simulate import Dataset2Config  # jax: imported on use
+    from jaxcal.simulate.recordings import dataset1_recordings, dataset2_recordings
+
     with _output_dir(args.out) as d:
         if args.dataset == "dataset2":
             kw = {name: getattr(args, name) for name in ("n_train", "n_val") if getattr(args, name) is not None}

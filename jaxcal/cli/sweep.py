@@ -14,7 +14,7 @@ from typing import Any
 
 from jaxcal.cli.core import PROG, Command, UsageError, _progress, register_command
 
-__all__: list[str] = []
+__all__ = ["sweep_lock", "sweep_lock_path"]
 
 
 def _add_sweep(p: argparse.ArgumentParser) -> None:
@@ -48,16 +48,16 @@ def _run_sweep(args: argparse.Namespace) -> int:
         log(f"sweep {args.config}: {n} runs in {len(sw.plan(spec))} batch(es) -> {args.out}")
     t0 = time.perf_counter()
     made = not d.exists()
-    with _lock(d):
+    with sweep_lock(d):
         return _sweep_locked(args, sw, spec, d, made, log, t0)
 
 
-def _lock(d: Path) -> contextlib.AbstractContextManager[None]:
+def sweep_lock(d: Path) -> contextlib.AbstractContextManager[None]:
     """A lock on ``--out DIR`` for the whole run (a file in the system's temporary folder named after
     DIR's absolute path, holding the writer's process id, so nothing is added beside DIR): a second
     sweep into the same folder is refused while the first runs; a lock whose process is gone (a
     killed sweep) is taken over, so ``--resume`` works after a kill."""
-    lock = _lock_path(d)
+    lock = sweep_lock_path(d)
 
     @contextlib.contextmanager
     def held() -> Iterator[None]:
@@ -87,7 +87,7 @@ def _lock(d: Path) -> contextlib.AbstractContextManager[None]:
     return held()
 
 
-def _lock_path(d: Path) -> Path:
+def sweep_lock_path(d: Path) -> Path:
     """The lock file of ``--out d``: in the system's temporary folder, named after d's absolute path."""
     import hashlib
     import tempfile

@@ -14,7 +14,7 @@ from jaxcal.multipos.data import MultiposData
 from jaxcal.multipos.fit import MultiposConfig, fit_prepared
 from jaxcal.multipos.gyro import gyro_angle_errors
 
-__all__ = ["HeldOut", "fold_batch", "fold_ids", "leave_poses_out"]
+__all__ = ["HeldOut", "fold_batch", "fold_ids", "fold_scores", "leave_poses_out"]
 
 
 class HeldOut(NamedTuple):
@@ -39,7 +39,7 @@ def fold_ids(n: int, n_folds: int) -> np.ndarray:
 
 
 @partial(jax.jit, static_argnames=("config", "batch"))
-def _fold_scores(
+def fold_scores(
     d: MultiposData, config: MultiposConfig, aw: jax.Array, gw: jax.Array, batch: int
 ) -> tuple[jax.Array, jax.Array]:
     """Every fold's fit (weights ``aw`` (F, P), ``gw`` (F, J)) and its scores on all poses (F, P)
@@ -87,7 +87,7 @@ def leave_poses_out(
         aw = jnp.asarray((pf[None, :] != np.arange(F)[:, None]).astype(np.float64))
         gw = jnp.asarray((tf[None, :] != np.arange(F)[:, None]).astype(np.float64))
 
-        ea, eg = (np.asarray(x) for x in _fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
+        ea, eg = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
     acc_err = ea[pf, np.arange(P)]
     gyr_err = np.where(np.asarray(data.seg_ok), eg[tf, np.arange(P - 1)], np.nan)
     return HeldOut(acc_err, gyr_err, pf, tf)
