@@ -55,12 +55,13 @@ from jaxcal import methods
 from jaxcal.diagnose import diagnose_banded
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.simulate import RichConfig, motion
+from jaxcal.eval.mocap import half
 from jaxcal.methods.diagnosed import apply as diagnosed_apply
-from jaxcal.methods.diagnosed import diagnosed_model_state
-from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, load_recording, recording_from_dict
+from jaxcal.methods.diagnosed import diagnosed_model_state, without_effect
+from jaxcal.recording import Recording, load_recording, recording_from_dict
 
 __all__ = ["EFFECTS", "simulate", "oracle_state", "run_effect", "run", "markdown", "REAL_RECORDINGS", "REAL_PAIRS",
-           "REAL_PAIRS_QUICK", "half", "without", "run_real", "real_markdown", "main"]
+           "REAL_PAIRS_QUICK", "run_real", "real_markdown", "main"]
 
 # (sensor, effect) -> parameters at a plausible MEMS size (vocabulary units)
 EFFECTS: dict[tuple[str, str], dict[str, np.ndarray]] = {
@@ -252,42 +253,6 @@ README_CHECKS = {  # the dataset READMEs' independent checks (cross-correlation,
 }
 
 
-def half(rec: Recording, k: int) -> Recording:
-    """The first (``k = 0``) or second (``k = 1``) half of a recording in time (pure): per-sample
-    fields cut at the middle time, the original pose track (``gt_*``) kept over the half's span
-    (plus 50 ms) so that ``diagnose`` still marks interpolation across missing pose samples.
-
-    Args:
-        rec: the recording.
-        k: 0 or 1.
-    """
-    t = np.asarray(rec.t)
-    mid = 0.5 * (t[0] + t[-1])
-    m = (t < mid) if k == 0 else (t >= mid)
-    ch = {f: np.asarray(getattr(rec, f))[m] for f in PER_SAMPLE_FIELDS if getattr(rec, f) is not None}
-    if rec.gt_t is not None:
-        g = (rec.gt_t >= ch["t"][0] - 0.05) & (rec.gt_t <= ch["t"][-1] + 0.05)
-        ch.update(gt_t=np.asarray(rec.gt_t)[g], gt_pos=None if rec.gt_pos is None else np.asarray(rec.gt_pos)[g],
-                  gt_quat=None if rec.gt_quat is None else np.asarray(rec.gt_quat)[g])
-    return rec.replace(**ch)
-
-
-def without(model: methods.CalibrationModel, sensor: str, name: str) -> methods.CalibrationModel:
-    """A ``diagnosed`` model with one carried effect dropped (baseline and the other effects at their
-    joint refit values, not refitted; ``T0`` dropped with the last temperature term).
-
-    Args:
-        model: the diagnosed model.
-        sensor: the effect's sensor.
-        name: the effect.
-    """
-    st = {s: dict(p) for s, p in model.state.items()}
-    st[sensor].pop(name)
-    if "T0" in st[sensor] and not any(k.startswith("temperature") for k in st[sensor]):
-        st[sensor].pop("T0")
-    return methods.CalibrationModel("diagnosed", model.sensors, st, model.meta)
-
-
 def _load_real(name: str) -> Recording:
     path, k = REAL_RECORDINGS[name]
     rec = load_recording(path)  # as the command line reads it
@@ -368,7 +333,7 @@ def run_real(quick: bool) -> dict:
         drops = []
         for s, names in after.meta["effects"].items():
             for name in names:
-                r_wo = _score(rb, without(after, s, name).apply(rb), sig)
+                r_wo = _score(rb, without_effect(after, s, name).apply(rb), sig)
                 drops.append({"sensor": s, "effect": name, "rms_after": sc["after"][s]["rms"], "rms_without": r_wo[s]["rms"],
                               "other_sensor_without": {o: v["rms"] for o, v in r_wo.items() if o != s}})
         row = {"diagnosed": a, "scored": b, "n_diagnosed": recs[a].n, "n_scored": rb.n, "sigma_scored": sig,

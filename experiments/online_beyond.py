@@ -26,9 +26,9 @@ from jaxcal.online import (
     NNOnlineHP,
     OnlineHP,
     ZeroLastMLP,
+    diag_theta,
     make_filter,
-    nn_calibrate_acc,
-    nn_calibrate_gyr,
+    nn_calibrate,
     online_nn_scan_jit,
     online_scan,
     spec_sequences,
@@ -58,14 +58,6 @@ def _hp64(hp: OnlineHP) -> OnlineHP:
     return OnlineHP(*[jnp.asarray(v) for v in hp])
 
 
-def true_theta(acc_true: Diag, gyr_true: Diag, acc_spec: Diag, gyr_spec: Diag) -> jnp.ndarray:
-    """The diag-layout parameters equal to a true Diag model (``K = s_spec / s``, ``e = (b - b_spec) / s``)."""
-    return jnp.concatenate(
-        [acc_spec.s / acc_true.s - 1, (acc_true.b - acc_spec.b) / acc_true.s,
-         gyr_spec.s / gyr_true.s - 1, (gyr_true.b - gyr_spec.b) / gyr_true.s]
-    )
-
-
 def _errors(theta, kind, u_acc_test, x_acc, u_gyr_test, x_gyr):
     filt = make_filter(kind)
     ea = jnp.mean(jnp.linalg.norm(filt.calibrate_acc(theta, u_acc_test) - x_acc, axis=-1))
@@ -88,7 +80,7 @@ def part_floor(quick: bool) -> dict:
         ua_t = (_f64(d.test_acc.raw) - aspec.b) / aspec.s
         ug_t = (_f64(d.test_gyr.raw) - gspec.b) / gspec.s
         xa, xg = _f64(d.test_acc.true), _f64(d.test_gyr.true)
-        th_true = true_theta(_spec64(d.acc_true_model), _spec64(d.gyr_true_model), aspec, gspec)
+        th_true = diag_theta(_spec64(d.acc_true_model), _spec64(d.gyr_true_model), aspec, gspec)
         fa, fg = _errors(th_true, "diag", ua_t, xa, ug_t, xg)
         spec_a, spec_g = _errors(jnp.zeros(12), "diag", ua_t, xa, ug_t, xg)
         row = {
@@ -155,8 +147,8 @@ def part_nn(d, batch, ua_t, xa, ug_t, xg, quick: bool) -> dict:
     mlp = ZeroLastMLP()
 
     def errs(th, pa, pg):
-        ea = jnp.mean(jnp.linalg.norm(nn_calibrate_acc(make_filter(kind), th, pa, ua_t, ba, nn_hp, mlp) - xa, axis=-1))
-        eg = jnp.mean(jnp.linalg.norm(nn_calibrate_gyr(make_filter(kind), th, pg, ug_t, bg, nn_hp, mlp) - xg, axis=-1))
+        ea = jnp.mean(jnp.linalg.norm(nn_calibrate("acc", make_filter(kind), th, pa, ua_t, ba, nn_hp, mlp) - xa, axis=-1))
+        eg = jnp.mean(jnp.linalg.norm(nn_calibrate("gyr", make_filter(kind), th, pg, ug_t, bg, nn_hp, mlp) - xg, axis=-1))
         return ea, eg
 
     curve = jax.jit(jax.vmap(errs))(th_h, pa_h, pg_h)
@@ -212,7 +204,7 @@ def part_noise(quick: bool) -> dict:
         acc_end, gyr_end = last(dd.truth.acc_model), last(dd.truth.gyr_model)
         ra, xa, rg, xg = _test_inputs(jax.random.PRNGKey(SEED + 8), acc_end, gyr_end)
         ua_t, ug_t = (ra - aspec.b) / aspec.s, (rg - gspec.b) / gspec.s
-        th_true = true_theta(acc_end, gyr_end, aspec, gspec)
+        th_true = diag_theta(acc_end, gyr_end, aspec, gspec)
         row = {}
         kind = "diag"
         filt = make_filter(kind)

@@ -25,7 +25,7 @@ What this module does instead:
    acceleration) lives in the motion samples, so the rest residuals are immune to it.
 3. **Hold out what it never saw** (:func:`fold_fits`): interleaved rest folds; fold ``k`` is
    initialised and streamed without its rests and the motions that touch them, so the held-out
-   figure includes the initialisation. The same folds score the initial guess, so a user sees
+   figure includes the initialisation (scored by :func:`jaxcal.eval.heldout.fold_errors`). The same folds score the initial guess, so a user sees
    whether the filter helped (and ``calibrate`` refuses a model that is worse than its own
    initial guess).
 
@@ -48,7 +48,7 @@ from jaxcal import multipos as mp
 from jaxcal.online import OnlineHP, SequenceBatch, make_filter, online_scan, to_linear_cal
 from jaxcal.sensor import Diag, LinearCal
 
-__all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "carried_sigma", "compose", "held_out_errors", "rest_scores", "field_batch", "fit_field", "fold_fits", "rest_init"]
+__all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "carried_sigma", "compose", "field_batch", "fit_field", "fold_fits", "rest_init"]
 
 RESIDUALS = ("rests", "all")
 
@@ -322,31 +322,3 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
                                     *(jnp.asarray(x, jnp.float64) for x in (w, wt)), dt64, hp64, kind), init, kind)
                   for (ua, ug, w, wt), init in zip(ins, inits)]
     return FoldFits(pf, inits, finals, np.asarray(n_seq), np.asarray(det, bool))
-
-
-def rest_scores(cal: FieldInit, data: mp.MultiposData) -> tuple[np.ndarray, np.ndarray]:
-    """Per-rest ``| |f| - 1 g |`` (g) and per-motion carried-gravity angle (rad; NaN where the motion
-    is unusable) of a calibration with its g-sensitivity, on the rests and motions of ``data``."""
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        a, g = (LinearCal(jnp.asarray(c.A, jnp.float64), jnp.asarray(c.b, jnp.float64)) for c in cal[:2])
-        ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
-        eg = np.asarray(mp.gyro_angle_errors(g, jnp.asarray(cal.G, jnp.float64), a, d))
-    return ea, np.where(np.asarray(data.seg_ok, bool), eg, np.nan)
-
-
-def held_out_errors(folds: FoldFits, data: mp.MultiposData, which: str = "final") -> tuple[np.ndarray, np.ndarray]:
-    """Each rest's ``| |f| - 1 g |`` (g) from the fold that left it out (NaN for the initial rest, in
-    no fold) and each motion's carried-gravity angle (rad) from the fold that left out the rest it
-    starts at (NaN where unusable), for the folds' ``"final"`` or ``"init"`` calibrations; NaN too
-    for the rests and motions of undetermined folds (:class:`FoldFits`)."""
-    pf = folds.rest_fold
-    P = len(pf)
-    ea, eg = np.full(P, np.nan), np.full(P - 1, np.nan)
-    for k, cal in enumerate(getattr(folds, which)):
-        if not folds.determined[k]:
-            continue
-        a, g = rest_scores(cal, data)
-        ea[pf == k] = a[pf == k]
-        eg[pf[:-1] == k] = g[pf[:-1] == k]
-    return ea, eg

@@ -84,6 +84,8 @@ __all__ = [
     "ZeroLastMLP",
     "fit_online_recording",
     "make_filter",
+    "diag_theta",
+    "nn_calibrate",
     "nn_calibrate_acc",
     "nn_calibrate_gyr",
     "online_nn_scan",
@@ -511,6 +513,16 @@ def to_linear_cal(theta: Float[Array, " Q"], kind: str, acc_spec: Diag, gyr_spec
     return LinearCal.from_forward(fa), LinearCal.from_forward(fg)
 
 
+def diag_theta(acc: Diag, gyr: Diag, acc_spec: Diag, gyr_spec: Diag) -> Float[Array, " Q"]:
+    """The ``"diag"``-layout parameters equal to diagonal models ``acc`` and ``gyr`` (e.g. a
+    simulation's truth) for a filter run with the datasheet models ``acc_spec`` and ``gyr_spec``:
+    ``K = s_spec / s``, ``e = (b - b_spec) / s`` (the inverse of :func:`to_linear_cal`)."""
+    return jnp.concatenate(
+        [acc_spec.s / acc.s - 1, (acc.b - acc_spec.b) / acc.s,
+         gyr_spec.s / gyr.s - 1, (gyr.b - gyr_spec.b) / gyr.s]
+    )
+
+
 # ----------------------------------------------------------------------------------------------
 # streaming passes
 # ----------------------------------------------------------------------------------------------
@@ -747,34 +759,27 @@ class NNState(NamedTuple):
     count: Int[Array, ""]
 
 
-def nn_calibrate_acc(filt: Filter, theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, mlp=ZeroLastMLP()):
-    """Backbone + NN residual accelerometer calibration of spec-converted readings ``raw_u``.
+def nn_calibrate(sensor: str, filt: Filter, theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, mlp=ZeroLastMLP()):
+    """Backbone + NN residual calibration of one sensor's spec-converted readings ``raw_u``.
 
     Args:
+        sensor: ``"acc"`` or ``"gyr"`` (static): the backbone's ``calibrate_<sensor>`` and
+            ``hp.out_scale_<sensor>``.
         filt: the backbone's :class:`Filter` (static).
         theta: (Q,) backbone parameters (traced).
         params: the residual network's parameters (traced).
         raw_u: (..., 3) spec-converted readings.
         bounds: eq. 3.6 bounds of the network input (spec-converted units).
-        hp: :class:`NNOnlineHP` (traced; ``out_scale_acc`` is read).
+        hp: :class:`NNOnlineHP` (traced).
         mlp: the residual network (static).
     """
-    return filt.calibrate_acc(theta, raw_u) + hp.out_scale_acc * mlp.apply({"params": params}, normalise(raw_u, bounds))
+    backbone = filt.calibrate_acc if sensor == "acc" else filt.calibrate_gyr
+    scale = hp.out_scale_acc if sensor == "acc" else hp.out_scale_gyr
+    return backbone(theta, raw_u) + scale * mlp.apply({"params": params}, normalise(raw_u, bounds))
 
 
-def nn_calibrate_gyr(filt: Filter, theta, params, raw_u, bounds: Bounds, hp: NNOnlineHP, mlp=ZeroLastMLP()):
-    """Backbone + NN residual gyroscope calibration of spec-converted readings ``raw_u``.
-
-    Args:
-        filt: the backbone's :class:`Filter` (static).
-        theta: (Q,) backbone parameters (traced).
-        params: the residual network's parameters (traced).
-        raw_u: (..., 3) spec-converted readings.
-        bounds: eq. 3.6 bounds of the network input (spec-converted units).
-        hp: :class:`NNOnlineHP` (traced; ``out_scale_gyr`` is read).
-        mlp: the residual network (static).
-    """
-    return filt.calibrate_gyr(theta, raw_u) + hp.out_scale_gyr * mlp.apply({"params": params}, normalise(raw_u, bounds))
+nn_calibrate_acc = functools.partial(nn_calibrate, "acc")  # the accelerometer's :func:`nn_calibrate`
+nn_calibrate_gyr = functools.partial(nn_calibrate, "gyr")  # the gyroscope's :func:`nn_calibrate`
 
 
 def _buffer_mean(err: Float[Array, " B"], wts: Float[Array, " B"]) -> Float[Array, ""]:
@@ -869,13 +874,13 @@ def online_nn_scan(
         theta = jax.lax.stop_gradient(fs.theta)
 
         def a_loss(pa, pg):
-            a_c = nn_calibrate_acc(filt, theta, pa, buf_a, bounds_a, nn_hp, mlp)
-            w_c = jax.lax.stop_gradient(nn_calibrate_gyr(filt, theta, pg, buf_g, bounds_g, nn_hp, mlp))
+            a_c = nn_calibrate("acc", filt, theta, pa, buf_a, bounds_a, nn_hp, mlp)
+            w_c = jax.lax.stop_gradient(nn_calibrate("gyr", filt, theta, pg, buf_g, bounds_g, nn_hp, mlp))
             return thesis_acc_loss(a_c, w_c, dt, buf_w, nn_hp.acc_loss_weight)
 
         def g_loss(pg, pa):
-            a_c = jax.lax.stop_gradient(nn_calibrate_acc(filt, theta, pa, buf_a, bounds_a, nn_hp, mlp))
-            w_c = nn_calibrate_gyr(filt, theta, pg, buf_g, bounds_g, nn_hp, mlp)
+            a_c = jax.lax.stop_gradient(nn_calibrate("acc", filt, theta, pa, buf_a, bounds_a, nn_hp, mlp))
+            w_c = nn_calibrate("gyr", filt, theta, pg, buf_g, bounds_g, nn_hp, mlp)
             return thesis_gyro_loss(a_c, w_c, dt, buf_w)
 
         def train(_, carry):

@@ -297,16 +297,17 @@ def test_online_without_labels_beats_spec(sim, tmp_path, capsys):
 
 def test_applied_sequence_score_equals_the_affine_one(sim):
     """Two implementations of the sequences' score: ``online.quality`` scores an ``online`` model
-    through its affine calibrations, ``online.seq_split_quality`` (any method's model, e.g.
+    through its affine calibrations, ``methods.quality.seq_split_quality`` (any method's model, e.g.
     ``online-thesis``) through its applied output. On the same model both rows agree (measured: equal
     to the last bit, in-sample and held out; the tolerance allows for float64 rounding elsewhere), and
     both held-out rows come from the same time split."""
-    from jaxcal.methods.online import OnlineOptions, quality, seq_split_quality
+    from jaxcal.methods.online import OnlineOptions, quality
+    from jaxcal.methods.quality import seq_split_quality
 
     rec = load_recording(sim / "nolabels" / "train.npz")
     model = methods.fit("online", rec, OnlineOptions())
     ins_a, ho_a = quality(rec, OnlineOptions(), model, held_out=True)
-    ins_b, ho_b = seq_split_quality("online", rec, OnlineOptions(), model, held_out=True)
+    ins_b, ho_b = seq_split_quality(rec, OnlineOptions(), model, held_out=True)
     for a, b in ((ins_a, ins_b), (ho_a, ho_b)):
         np.testing.assert_allclose(b["acc_rms_mg"], a["acc_rms_mg"], rtol=1e-9)
         np.testing.assert_allclose(b["gyr_median_deg"], a["gyr_median_deg"], rtol=1e-6)

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from jaxcal import field
+from jaxcal.eval.heldout import fold_errors
 from jaxcal.methods import online as mo
 from jaxcal.methods.summary import contradiction
 from jaxcal.online import OnlineHP
@@ -123,8 +124,8 @@ def test_fold_fits_hold_out_their_rests_and_score_the_initial_guess_too(hand_ses
     assert len(folds.final) == len(folds.init) == 4 and folds.determined.all()
     P = len(rests.intervals)
     assert folds.rest_fold[0] == -1 and set(folds.rest_fold[1:]) == set(range(4))
-    ea, eg = field.held_out_errors(folds, rests.data, "final")
-    ea0, _ = field.held_out_errors(folds, rests.data, "init")
+    ea, eg = fold_errors(folds.final, rests.data, folds.rest_fold, folds.determined)
+    ea0, _ = fold_errors(folds.init, rests.data, folds.rest_fold, folds.determined)
     assert np.isnan(ea[0]) and np.isfinite(ea[1:]).all() and len(eg) == P - 1
     # 4 LSB of noise at ~16000 LSB/g over 300-sample rests: ~0.03 mg per rest mean; measured RMS 0.1 mg
     assert 1e3 * np.sqrt(np.mean(ea[1:] ** 2)) < 0.5 and 1e3 * np.sqrt(np.mean(ea0[1:] ** 2)) < 0.5

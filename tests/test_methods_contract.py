@@ -143,6 +143,22 @@ def test_shared_option_fields_have_one_default():
             seen.setdefault(f, (m.name, d))
 
 
+def test_shared_option_fields_have_one_flag():
+    """A field several options types declare a flag for (``FLAGS``) declares the same one, so the
+    CLI's one flag for it means one thing; every declared flag names a field of its type, and no
+    two fields share a flag."""
+    seen: dict[str, tuple[str, object]] = {}
+    for m in methods.REGISTRY.values():
+        declared = getattr(m.options, "FLAGS", {})
+        assert set(declared) <= set(m.options._fields), (m.name, set(declared) - set(m.options._fields))
+        for f, flag in declared.items():
+            if f in seen:
+                assert seen[f][1] == flag, (f, seen[f][0], m.name)
+            seen.setdefault(f, (m.name, flag))
+    names = [flag.flag for _, flag in seen.values()]
+    assert len(names) == len(set(names)), names
+
+
 def test_unknown_method_is_refused():
     with pytest.raises(ModelError, match="unknown method 'voodoo' \\(known: linear, nn"):
         methods.get("voodoo")
@@ -165,6 +181,13 @@ def test_a_new_method_needs_only_a_module_and_a_registry_line(tmp_path, capsys):
         # the true model is diagonal (Dataset 2, eq. 4.6): the toy recovers the labels to quantisation noise
         with np.load(tmp_path / "c.npz") as z:
             np.testing.assert_allclose(z["acc_cal"], _dataset2(True).acc_ref, atol=2e-4)
+        # its own option's flag, declared on its options type only (no edit in jaxcal/cli)
+        assert main(["calibrate", "--method", "toy-diag", str(rec_path), "--out", str(tmp_path / "o.npz"), "-q",
+                     "--through-origin"]) == 0
+        st, rec = load_model(tmp_path / "o.npz").state["acc"], _dataset2(True)
+        x, y = rec.acc_ref, np.asarray(rec.acc, np.float64)
+        np.testing.assert_array_equal(st["b"], 0.0)
+        np.testing.assert_allclose(np.diag(st["S"]), (x * y).sum(0) / (x * x).sum(0), rtol=1e-12)
     finally:
         methods.REGISTRY.pop("toy-diag")
     assert "toy-diag" not in methods.names()

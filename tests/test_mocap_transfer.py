@@ -1,5 +1,6 @@
 """Scoring a calibration on another recording against its mocap (:func:`jaxcal.eval.mocap.calibrated_rms`)
-and the helpers of the real-rig part of experiments/apply_effects.py (halves, dropping one effect)."""
+and the helpers of the real-rig part of experiments/apply_effects.py (halves, :func:`jaxcal.eval.mocap.half`;
+dropping one effect, :func:`jaxcal.methods.diagnosed.without_effect`)."""
 
 from __future__ import annotations
 
@@ -9,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from experiments.apply_effects import half, without
 from jaxcal.constants import G0
-from jaxcal.eval.mocap import as_recorded_rms, calibrated_rms
+from jaxcal.eval.mocap import as_recorded_rms, calibrated_rms, half
 from jaxcal.methods import CalibrationModel
+from jaxcal.methods.diagnosed import without_effect
 from jaxcal.recording import recording_from_dict
 
 FS, N, OM = 200.0, 2000, 1.0
@@ -80,9 +81,9 @@ def test_without_drops_one_effect_and_t0_with_the_last_temperature_term():
                   "T0": np.asarray(30.0)},
           "gyr": {"S": np.eye(3), "b": np.zeros(3), "time_offset": np.asarray(0.004)}}
     m = CalibrationModel("diagnosed", ("acc", "gyr"), st, {"effects": {"acc": ["lever_arm", "temperature_bias"], "gyr": ["time_offset"]}})
-    a = without(m, "acc", "temperature_bias")
+    a = without_effect(m, "acc", "temperature_bias")
     assert set(a.state["acc"]) == {"S", "b", "lever_arm"} and "T0" in m.state["acc"]  # the original is untouched
-    g = without(m, "gyr", "time_offset")
+    g = without_effect(m, "gyr", "time_offset")
     assert set(g.state["gyr"]) == {"S", "b"} and a.state["gyr"]["time_offset"] == 0.004
 
 

@@ -15,10 +15,15 @@ import pytest
 
 from jaxcal import fisher
 from jaxcal import online_thesis as ot
+from jaxcal.normalise import Bounds
 from jaxcal.online import (
+    NNOnlineHP,
     OnlineHP,
+    ZeroLastMLP,
+    diag_theta,
     fit_online_recording,
     make_filter,
+    nn_calibrate,
     online_pass,
     thesis_acc_loss,
     thesis_gyro_loss,
@@ -114,6 +119,31 @@ def test_unpack_affine_gauge_and_to_linear_cal_roundtrip(x64):
     np.testing.assert_allclose(am.apply(y), direct, rtol=1e-10, atol=1e-12)
     direct_g = filt.calibrate_gyr(theta, (y - gspec.b) / gspec.s)
     np.testing.assert_allclose(gm.apply(y), direct_g, rtol=1e-10, atol=1e-12)
+
+
+def test_diag_theta_is_the_diag_layout_of_a_true_model(x64):
+    """``diag_theta`` inverts ``to_linear_cal`` for the diag layout: the parameters of a true diagonal
+    model, run with another datasheet, give back exactly that model (``A = diag(1/s)``, ``b``)."""
+    true_a, true_g = Diag(jnp.array([16100.0, 16400.0, 15900.0]), jnp.array([30.0, -12.0, 7.0])), \
+        Diag(jnp.array([7400.0, 7600.0, 7550.0]), jnp.array([-40.0, 15.0, 3.0]))
+    spec_a, spec_g = Diag(jnp.full(3, 16384.0), jnp.zeros(3)), Diag(jnp.full(3, 7500.0), jnp.zeros(3))
+    am, gm = to_linear_cal(diag_theta(true_a, true_g, spec_a, spec_g), "diag", spec_a, spec_g)
+    for cal, true in ((am, true_a), (gm, true_g)):
+        np.testing.assert_allclose(cal.A, np.diag(1.0 / np.asarray(true.s)), rtol=1e-12)
+        np.testing.assert_allclose(cal.b, true.b, rtol=1e-12, atol=1e-9)
+
+
+def test_nn_calibrate_with_a_zero_last_layer_is_the_backbone(x64):
+    """The residual network's last layer starts at zero, so ``nn_calibrate`` is the backbone's
+    calibration of either sensor at initialisation."""
+    filt, mlp = make_filter("diag"), ZeroLastMLP()
+    theta = jax.random.normal(jax.random.PRNGKey(4), (12,), jnp.float64) * 0.01
+    u = jax.random.normal(jax.random.PRNGKey(5), (7, 3), jnp.float64)
+    params = mlp.init(jax.random.PRNGKey(6), u)["params"]
+    bounds = Bounds(jnp.full(3, -2.0), jnp.full(3, 2.0))
+    hp = NNOnlineHP()
+    np.testing.assert_array_equal(nn_calibrate("acc", filt, theta, params, u, bounds, hp, mlp), filt.calibrate_acc(theta, u))
+    np.testing.assert_array_equal(nn_calibrate("gyr", filt, theta, params, u, bounds, hp, mlp), filt.calibrate_gyr(theta, u))
 
 
 def test_fit_online_recording_flat_arrays(small_d2):

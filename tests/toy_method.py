@@ -11,8 +11,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     REF_KEY,
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -32,9 +34,16 @@ class ToyOptions(NamedTuple):
 
     Args:
         sensors: sensors to calibrate; ``None``: every labelled one.
+        through_origin: fit ``y = k x`` (no bias).
     """
 
     sensors: tuple[str, ...] | None = None
+    through_origin: bool = False
+
+    # the command-line flags of its fields (jaxcal calibrate reads them; no CLI edit)
+    FLAGS = {"sensors": SHARED_FLAGS["sensors"],
+             "through_origin": Flag("--through-origin", None, None, "fit y = k x (no bias)", const=True,
+                                    show_default="off")}
 
 
 def fit(rec: Recording, options: ToyOptions, log: Log) -> Fitted:
@@ -50,9 +59,13 @@ def fit(rec: Recording, options: ToyOptions, log: Log) -> Fitted:
     for s in sensors:
         y = np.asarray(getattr(rec, s), np.float64)
         x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
-        xc = x - x.mean(0)
-        k = (xc * (y - y.mean(0))).sum(0) / (xc * xc).sum(0)
-        state[s] = Affine(np.diag(k), y.mean(0) - k * x.mean(0))
+        if options.through_origin:
+            k = (x * y).sum(0) / (x * x).sum(0)
+            state[s] = Affine(np.diag(k), np.zeros(3))
+        else:
+            xc = x - x.mean(0)
+            k = (xc * (y - y.mean(0))).sum(0) / (xc * xc).sum(0)
+            state[s] = Affine(np.diag(k), y.mean(0) - k * x.mean(0))
         log(f"toy-diag ({s}): scale {k}")
     return Fitted(sensors, state, {"units": units(rec, sensors)})
 

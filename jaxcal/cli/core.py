@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import shutil
 import sys
@@ -43,6 +42,10 @@ import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import NamedTuple
+
+from jaxcal.flags import count as _count  # noqa: F401  (the argument types the commands import from here;
+from jaxcal.flags import real as _real  # noqa: F401  one copy, in jaxcal.flags, shared with the method
+from jaxcal.flags import seed as _seed  # noqa: F401  options' flags)
 
 __all__ = ["COMMANDS", "PROG", "Command", "UsageError", "register_command"]
 
@@ -123,52 +126,9 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
 
 
 # ----------------------------------------------------------------------------- argument types
+# (_seed, _real, _count: imported above from jaxcal.flags)
 
-SEED_MAX = 2**32 - 1  # jax.random.PRNGKey takes 32-bit seeds; larger ones overflow or alias
 MAX_SIM_SEQUENCES = 20_000  # simulate: 101 samples each, so at most ~2 million samples per file
-
-
-def _seed(text: str) -> int:
-    """A PRNG seed: an integer in [0, 2**32 - 1]."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text!r}") from None
-    if not 0 <= v <= SEED_MAX:
-        raise argparse.ArgumentTypeError(f"seed must lie in [0, {SEED_MAX}], got {text}")
-    return v
-
-
-def _real(low: float, high: float = math.inf, *, open_low: bool = True) -> Callable[[str], float]:
-    """An argparse type: a finite float in ``(low, high]`` (``[low, high]`` if not ``open_low``)."""
-
-    def parse(text: str) -> float:
-        try:
-            v = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        inside = (v > low if open_low else v >= low) and v <= high
-        if not (math.isfinite(v) and inside):
-            rng = f"{'(' if open_low else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
-            raise argparse.ArgumentTypeError(f"expected a finite number in {rng}, got {text!r}")
-        return v
-
-    return parse
-
-
-def _count(low: int, high: int) -> Callable[[str], int]:
-    """An argparse type: an integer in ``[low, high]``."""
-
-    def parse(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if not low <= v <= high:
-            raise argparse.ArgumentTypeError(f"expected an integer in [{low}, {high}], got {text}")
-        return v
-
-    return parse
 
 
 # ----------------------------------------------------------------------------- output safety

@@ -3,8 +3,12 @@
 - :mod:`~jaxcal.eval.scores`: scores of a :class:`~jaxcal.sensor.LinearCal` pair on static poses
   (``| |f| - 1 g |``) and on the motions between them (carried-gravity angle), in-sample and
   leave-poses-out, as summary rows; paired comparison of rows with a peer's.
-- :mod:`~jaxcal.eval.heldout`: held-out fold runners: ``online`` on pose folds, multipos and fixed
-  calibrations on a time split of a continuous session (fair to peers that need whole sections).
+- :mod:`~jaxcal.eval.heldout`: held-out fold runners: ``online`` on pose folds, any per-fold
+  calibrations scored on what their fold left out (:func:`~jaxcal.eval.heldout.fold_errors`),
+  multipos and fixed calibrations on a time split of a continuous session (fair to peers that need
+  whole sections).
+- :mod:`~jaxcal.eval.seqsplit`: a recording with ``seq`` ids scored by each sequence's first and
+  last samples, in-sample and on a time split of its sequences.
 - :mod:`~jaxcal.eval.checks`: independent checks: rotation carried by the integrated gyro between two
   rests (the 90 deg turn of a rot90x recording, the return to the start pose of a hand-held one).
 - :mod:`~jaxcal.eval.mocap`: a recording against its motion capture (``diagnose``'s held-out RMS beside
@@ -15,6 +19,6 @@ No I/O: every function takes arrays (or a :class:`~jaxcal.recording.Recording`) 
 or plain dicts.
 """
 
-from jaxcal.eval import checks, heldout, mocap, peers, scores
+from jaxcal.eval import checks, heldout, mocap, peers, scores, seqsplit
 
-__all__ = ["checks", "heldout", "mocap", "peers", "scores"]
+__all__ = ["checks", "heldout", "mocap", "peers", "scores", "seqsplit"]

@@ -1,7 +1,9 @@
 """Held-out fold runners for real recordings.
 
-- :func:`online_fit` / :func:`online_heldout`: jaxcal ``online`` streamed over chosen sample ranges,
-  and scored on interleaved pose folds it never saw.
+- :func:`stream_segments` / :func:`online_fit` / :func:`online_heldout`: jaxcal ``online`` streamed
+  over chosen sample ranges, and scored on interleaved pose folds it never saw.
+- :func:`fold_errors`: each pose (rest) scored by the fold's calibration that left it out, each
+  transition by the fold that left out the pose it starts at (the one rest-fold loop).
 - :func:`fair_data` / :func:`fair_multipos` / :func:`fixed_errors`: a continuous session cut by
   :func:`jaxcal.multipos.time_split` (each static section halved in time), so a peer that needs whole
   sections and jaxcal are scored on the same held-out halves, motions and turns.
@@ -18,7 +20,52 @@ from jaxcal import online as onl
 from jaxcal.eval.scores import score_cal, summarise
 from jaxcal.sensor import Diag, LinearCal
 
-__all__ = ["online_fit", "online_heldout", "fair_data", "fair_multipos", "fixed_errors"]
+__all__ = ["stream_segments", "fold_errors", "online_fit", "online_heldout", "fair_data", "fair_multipos", "fixed_errors"]
+
+
+def stream_segments(acc: np.ndarray, gyr: np.ndarray, segments, dt: float, aspec: Diag | None, gspec: Diag | None,
+                    hp: onl.OnlineHP, kind: str) -> tuple[LinearCal, LinearCal]:
+    """The ``online`` filter (:func:`jaxcal.online.fit_online_recording`) streamed over the sample
+    ranges ``segments`` ``[(a, b), ...)``, one sequence each, visited in order.
+
+    Args:
+        acc, gyr: (N, 3) sensor outputs of the whole recording.
+        segments: sample ranges, one sequence each.
+        dt: sample period (s).
+        aspec, gspec: datasheet-like specs, the prior centre of the filter (``None``: from the data).
+        hp: the filter's :class:`~jaxcal.online.OnlineHP`.
+        kind: ``"affine"`` or ``"diag"``.
+    """
+    idx = np.concatenate([np.arange(a, b) for a, b in segments])
+    seq = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(segments)])
+    return onl.fit_online_recording(np.asarray(acc, np.float64)[idx], np.asarray(gyr, np.float64)[idx], seq, dt,
+                                    aspec, gspec, hp, kind)
+
+
+def fold_errors(cals, data: mp.MultiposData, pose_fold: np.ndarray,
+                scored: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Held-out errors of per-fold calibrations: each pose's ``| |f| - 1 |`` (g) from the fold that
+    left it out, each transition's carried-gravity angle (rad) from the fold that left out the pose
+    it starts at (:func:`~jaxcal.eval.scores.score_cal`); NaN for poses in no fold (fold id -1),
+    unusable transitions and the items of folds not ``scored``.
+
+    Args:
+        cals: per fold ``k``, its ``(acc, gyr)`` or ``(acc, gyr, G)`` calibration (e.g. a
+            :class:`~jaxcal.field.FieldInit`).
+        data: the prepared poses and transitions.
+        pose_fold: (P,) fold id of each pose (-1: in every fold's training set).
+        scored: (F,) bool, the fold is scored (``None``: all).
+    """
+    pf = np.asarray(pose_fold)
+    P = len(pf)
+    ea, eg = np.full(P, np.nan), np.full(P - 1, np.nan)
+    for k, cal in enumerate(cals):
+        if scored is not None and not scored[k]:
+            continue
+        a, g = score_cal(cal[0], cal[1], data, *cal[2:])
+        ea[pf == k] = a[pf == k]
+        eg[pf[:-1] == k] = g[pf[:-1] == k]
+    return ea, eg
 
 
 def online_fit(acc: np.ndarray, gyr: np.ndarray, segments, dt: float, aspec: Diag, gspec: Diag,
@@ -36,9 +83,7 @@ def online_fit(acc: np.ndarray, gyr: np.ndarray, segments, dt: float, aspec: Dia
         aspec, gspec: datasheet-like specs, the prior centre of the filter.
         sigma_acc: static accelerometer noise measured on the recording (its unit after ``aspec``).
     """
-    idx = np.concatenate([np.arange(a, b) for a, b in segments])
-    seq = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(segments)])
-    return onl.fit_online_recording(acc[idx], gyr[idx], seq, dt, aspec, gspec, onl.OnlineHP(sigma_acc=sigma_acc, n_iter=8), "affine")
+    return stream_segments(acc, gyr, segments, dt, aspec, gspec, onl.OnlineHP(sigma_acc=sigma_acc, n_iter=8), "affine")
 
 
 def online_heldout(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, iv: np.ndarray, data: mp.MultiposData,
@@ -63,17 +108,13 @@ def online_heldout(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, iv: np.ndarr
     pf = mp.fold_ids(P, F)
     ok = np.asarray(data.seg_ok)
     dt = float(np.median(np.diff(t)))
-    ea, eg = np.full(P, np.nan), np.full(P - 1, np.nan)
-    n_seq = []
+    cals, n_seq = [], []
     for k in range(F):
         train = [j for j in range(P - 1) if pf[j] != k and pf[j + 1] != k and ok[j]]
         segs = [(max(iv[j, 0], iv[j, 1] - pad), min(iv[j + 1, 1], iv[j + 1, 0] + pad)) for j in train]
         n_seq.append(len(segs))
-        ca, cg = online_fit(acc, gyr, segs, dt, aspec, gspec, sigma_acc)
-        a, g = score_cal(ca, cg, data)
-        ea[pf == k] = a[pf == k]
-        sel = (pf[:-1] == k) & ok
-        eg[sel] = g[sel]
+        cals.append(online_fit(acc, gyr, segs, dt, aspec, gspec, sigma_acc))
+    ea, eg = fold_errors(cals, data, pf)
     return summarise(ea, eg, f"held out ({'leave-one-pose-out' if n_folds is None else f'{F} interleaved pose folds'}; "
                      f"{min(n_seq)}-{max(n_seq)} sequences per fold)")
 

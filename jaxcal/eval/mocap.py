@@ -4,7 +4,8 @@
 fitted) beside the held-out RMS of jaxcal's baseline re-calibration and of the baseline plus the
 effects ``diagnose`` names, per sensor. :func:`calibrated_rms` scores any calibrated output of a
 recording (e.g. a model fitted on another recording) against that recording's own mocap reference,
-in a given band, the way :func:`as_recorded_rms` scores the recording as it is.
+in a given band, the way :func:`as_recorded_rms` scores the recording as it is; :func:`half` cuts a
+recording in two halves in time, so that a model fitted on one is scored on the other's mocap.
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ import numpy as np
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import prepare as diag_prepare
 from jaxcal.diagnose.select import linearize_baseline
+from jaxcal.recording import PER_SAMPLE_FIELDS, Recording
 
-__all__ = ["as_recorded_rms", "calibrated_rms", "mocap_summary"]
+__all__ = ["as_recorded_rms", "calibrated_rms", "half", "mocap_summary"]
 
 
 def as_recorded_rms(rec, baseline: str = "affine") -> dict[str, float]:
@@ -95,3 +97,23 @@ def mocap_summary(rec, report: dict, baseline: str = "affine") -> dict:
             "effects": [f"{e['name']}" for e in report["effects"] if e["sensor"] == s],
         }
     return out
+
+
+def half(rec: Recording, k: int) -> Recording:
+    """The first (``k = 0``) or second (``k = 1``) half of a recording in time (pure): per-sample
+    fields cut at the middle time, the original pose track (``gt_*``) kept over the half's span
+    (plus 50 ms) so that ``diagnose`` still marks interpolation across missing pose samples.
+
+    Args:
+        rec: the recording.
+        k: 0 or 1.
+    """
+    t = np.asarray(rec.t)
+    mid = 0.5 * (t[0] + t[-1])
+    m = (t < mid) if k == 0 else (t >= mid)
+    ch = {f: np.asarray(getattr(rec, f))[m] for f in PER_SAMPLE_FIELDS if getattr(rec, f) is not None}
+    if rec.gt_t is not None:
+        g = (rec.gt_t >= ch["t"][0] - 0.05) & (rec.gt_t <= ch["t"][-1] + 0.05)
+        ch.update(gt_t=np.asarray(rec.gt_t)[g], gt_pos=None if rec.gt_pos is None else np.asarray(rec.gt_pos)[g],
+                  gt_quat=None if rec.gt_quat is None else np.asarray(rec.gt_quat)[g])
+    return rec.replace(**ch)

@@ -4,11 +4,21 @@ Accelerometer: per static pose, ``| |A_a (y - b_a)| - 1 |`` in g (the pose mean,
 averages out). Gyroscope: per transition between consecutive poses, the angle between the gravity
 direction of pose ``j`` carried by the integrated gyro (physical convention ``f_next = R^T f_prev``)
 and the gravity direction measured in pose ``j + 1`` (rad; NaN where the transition is unusable,
-e.g. a saturated gyro). Rows are plain dicts: summary numbers plus the per-item errors under
-``_acc_err`` / ``_gyr_err`` (keys starting with ``_`` are not for reports).
+e.g. a saturated gyro). :func:`score_cal` is the one scorer of a calibration pair (with the
+gyroscope's g-sensitivity ``G`` where it has one); every score row is built from its per-item errors.
+
+Two renderings of the same errors:
+
+- :class:`QualityRow` (:func:`quality_row`): the row every method's quality reports (``jaxcal
+  calibrate``'s ``in_sample`` / ``held_out`` metadata, CONVENTIONS.md "Model files"): RMS over the
+  scored poses (mg) and the median over the scored transitions (deg), with what was scored.
+- :func:`summarise`: the experiments' report row (means, maxima, counts), plus the per-item errors
+  under ``_acc_err`` / ``_gyr_err`` (keys starting with ``_`` are not for reports).
 """
 
 from __future__ import annotations
+
+from typing import Any, TypedDict
 
 import jax
 import jax.numpy as jnp
@@ -18,8 +28,51 @@ from jaxcal import compare
 from jaxcal import multipos as mp
 from jaxcal.sensor import LinearCal
 
-__all__ = ["summarise", "score_cal", "score_fixed", "score_heldout", "score_insample", "fair_row", "paired_with_peer",
+__all__ = ["QualityRow", "quality_row", "summarise", "score_cal", "score_fixed", "score_heldout", "score_insample", "fair_row", "paired_with_peer",
            "public"]
+
+
+class QualityRow(TypedDict, total=False):
+    """A method's quality row (``in_sample`` / ``held_out`` of a model's metadata); every key optional.
+
+    Args:
+        acc_rms_mg: accelerometer error RMS (mg): ``| |f| - 1 g |`` over scored poses (rests), or
+            against the labels for a labelled method.
+        gyr_median_deg: median carried-gravity angle over the scored transitions (deg).
+        gyr_rms_degs: gyroscope error RMS against the labels (deg/s), labelled methods.
+        how: what was scored (and held out).
+        initial_guess: the same items scored with the fit's starting point (a :class:`QualityRow`).
+        not_held_out: items left unscored because their fold was undetermined.
+        without_g_sensitivity: the same figure fitted without the gyro's g-sensitivity.
+        error: why the row could not be computed (the other keys absent).
+        skipped: why the row was not computed.
+    """
+
+    acc_rms_mg: float | None
+    gyr_median_deg: float | None
+    gyr_rms_degs: float
+    how: str
+    initial_guess: Any
+    not_held_out: dict
+    without_g_sensitivity: Any
+    error: str
+    skipped: str
+
+
+def quality_row(ea: np.ndarray, eg: np.ndarray, how: str) -> QualityRow:
+    """The :class:`QualityRow` of per-pose errors ``ea`` (g, every one scored: the caller picks
+    them) and per-transition angles ``eg`` (rad; non-finite ones are not scored).
+
+    Args:
+        ea: (P,) ``| |f| - 1 |`` of the scored poses, in g; ``acc_rms_mg`` ``None`` when empty.
+        eg: (J,) carried-gravity angles, in rad; ``gyr_median_deg`` ``None`` when none is finite.
+        how: what was scored.
+    """
+    ea = np.asarray(ea)
+    eg = np.asarray(eg)
+    eg = eg[np.isfinite(eg)]
+    return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))) if ea.size else None,
+            "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None, "how": how}
 
 
 def summarise(ea: np.ndarray, eg: np.ndarray, scored: str) -> dict:
@@ -46,7 +99,8 @@ def summarise(ea: np.ndarray, eg: np.ndarray, scored: str) -> dict:
     }
 
 
-def score_cal(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData) -> tuple[np.ndarray, np.ndarray]:
+def score_cal(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData,
+              G: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-pose ``|f|`` errors and per-transition carried-gravity angles (NaN where ``data.seg_ok`` is
     false) of a given calibration pair, in float64.
 
@@ -54,14 +108,17 @@ def score_cal(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData) -> tuple[np
         acc: accelerometer calibration (applied form; ``1 g`` = the unit the errors are in).
         gyr: gyroscope calibration (applied form, to rad/s).
         data: prepared poses and transitions (:func:`jaxcal.multipos.prepare`).
+        G: (3, 3) the gyroscope's g-sensitivity ((rad/s)/g: ``w = A_g (y_g - b_g) - G f``, ``f``
+            the calibrated accelerometer); ``None``: zero.
     """
     with jax.enable_x64(True):
         d = jax.tree_util.tree_map(jnp.asarray, data)
         a = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), acc)
         g = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), gyr)
+        gs = jnp.zeros((3, 3)) if G is None else jnp.asarray(G, jnp.float64)
         ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
-        eg = np.asarray(mp.gyro_angle_errors(g, jnp.zeros((3, 3)), a, d))
-    return ea, np.where(np.asarray(data.seg_ok), eg, np.nan)
+        eg = np.asarray(mp.gyro_angle_errors(g, gs, a, d))
+    return ea, np.where(np.asarray(data.seg_ok, bool), eg, np.nan)
 
 
 def score_fixed(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData) -> dict:

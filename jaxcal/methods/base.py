@@ -2,7 +2,8 @@
 
 A method is a :class:`Method`: a name, a ``fit`` and an ``apply`` function, its typed options
 (a ``NamedTuple`` whose defaults are the only copy of the method's defaults; the CLI reads its
-flags' defaults from them), a one-line description and an optional ``check`` of a loaded state.
+flags' defaults from them), a one-line description, an optional ``check`` of a loaded state and
+an optional ``quality`` (what ``jaxcal calibrate`` reports in-sample and held out).
 
 * ``fit(rec, options, log) -> Fitted``: estimate a calibration from a
   :class:`~jaxcal.recording.Recording`; ``log`` is a progress sink (one line per call).
@@ -30,7 +31,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcal import flags
 from jaxcal.constants import PHYS_UNIT, SENSORS
+from jaxcal.flags import Flag
 from jaxcal.recording import Recording, sequence_slices
 from jaxcal.sensor import Affine, Diag, LinearCal, spec_diag
 from jaxcal.sequences import sequence_bounds
@@ -41,6 +44,7 @@ __all__ = [
     "PAD_FLOOR",
     "PAD_RATIO_MAX",
     "REF_KEY",
+    "SHARED_FLAGS",
     "ApplyFn",
     "CheckFn",
     "FitFn",
@@ -52,6 +56,7 @@ __all__ = [
     "affine_state",
     "apply_linear_state",
     "check_linear_state",
+    "datasheet_cals",
     "gsens_of",
     "holdout_mask",
     "labelled_sensors",
@@ -67,6 +72,27 @@ __all__ = [
 ]
 
 REF_KEY = {"acc": "acc_ref", "gyr": "gyr_ref"}
+
+# The flags of option fields that several methods' options types share (each type declares them in
+# its ``FLAGS`` from here, so a shared field has one flag; jaxcal.flags).
+SHARED_FLAGS: dict[str, Flag] = {
+    "seed": Flag("--seed", flags.seed, None, "PRNG seed in [0, 2**32 - 1]", "N"),
+    "sensors": Flag("--sensors", flags.sensors, None, "calibrate only these: acc, gyr or acc,gyr", "S",
+                    show_default="all labelled"),
+    "g_sensitivity": Flag("--g-sensitivity", None, None, "also fit the gyroscope's g-sensitivity G ((rad/s)/g: "
+                          "w = A_g (y_g - b_g) - G f, f the calibrated accelerometer) jointly with the gyro bias from "
+                          "the rests (4+ poses spanning 3-D), stored as state/gyr/G and applied by `jaxcal apply` "
+                          "(which then needs the recording's acc)", const=True,
+                          show_default="off"),
+    "prior_scale": Flag("--prior-scale", flags.real(0.0, 10.0), None,
+                        "prior std of the relative scale around the datasheet value (sensitivity tolerance)", "S"),
+    "prior_cross": Flag("--prior-cross", flags.real(0.0, 10.0), None, "prior std of the cross-axis terms", "S"),
+    "init_duration": Flag("--init-duration", flags.real(0.0, 1e6), None, "seconds of initial rest that set the rest "
+                          "detector's threshold", "SEC", show_default="10 %% of the recording, at most 30 s"),
+    "min_rest": Flag("--min-rest", flags.real(0.0, 1e6), None, "shortest rest (pose) kept, in seconds", "SEC"),
+    "rest_window": Flag("--rest-window", flags.real(0.0, 1e6), None,
+                        "moving-variance window of the rest detector, seconds", "SEC"),
+}
 
 
 class ModelError(ValueError):
@@ -100,9 +126,15 @@ class Method(NamedTuple):
         name: the name used by ``jaxcal calibrate --method`` and stored in model files.
         fit: ``fit(rec, options, log) -> Fitted`` (see the module docstring).
         apply: ``apply(state, meta, rec) -> {"acc_cal": ..., "gyr_cal": ...}``.
-        options: the method's options type (a ``NamedTuple`` with a default for every field).
+        options: the method's options type (a ``NamedTuple`` with a default for every field; its
+            class attribute ``FLAGS``, field -> :class:`~jaxcal.flags.Flag`, declares the
+            ``calibrate`` flags of its fields, :data:`SHARED_FLAGS` for a field another type shares).
         doc: one-line description (``jaxcal methods``).
         check: optional ``check(state, meta, sensors)`` run by ``load_model``; raises :class:`ModelError`.
+        quality: optional ``quality(rec, options, model, *, held_out, log) -> (in_sample, held_out)``,
+            the method's quality rows (:class:`~jaxcal.eval.scores.QualityRow`, ``None`` where not
+            computed) that ``jaxcal calibrate`` reports (:func:`jaxcal.methods.summary.describe`);
+            ``None``: no built-in held-out score.
     """
 
     name: str
@@ -111,6 +143,7 @@ class Method(NamedTuple):
     options: type
     doc: str
     check: CheckFn | None = None
+    quality: Callable[..., tuple[Any, Any]] | None = None
 
 
 # ----------------------------------------------------------------------------- recording helpers
@@ -149,6 +182,19 @@ def recording_spec(rec: Recording, sensor: str) -> Diag | None:
     if scale is None:
         return None
     return spec_diag(np.asarray(scale, np.float32), np.asarray(0.0 if bias is None else bias, np.float32))
+
+
+def datasheet_cals(rec: Recording) -> tuple[LinearCal, LinearCal] | None:
+    """The datasheet conversion of both sensors (:func:`recording_spec`) as numpy float64
+    :class:`~jaxcal.sensor.LinearCal` pair (the starting point of the ``seq`` methods), or ``None``
+    when either has no datasheet values."""
+    specs = [recording_spec(rec, s) for s in SENSORS]
+    if any(sp is None for sp in specs):
+        return None
+    with jax.enable_x64(True):
+        cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
+                     for sp in specs)
+        return tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
 
 
 def recording_dt(rec: Recording) -> float:

@@ -18,8 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcal import flags
 from jaxcal.constants import PHYS_UNIT
-from jaxcal.methods.base import REF_KEY, Fitted, Log, Method, ModelError, labelled_sensors, rms, units
+from jaxcal.flags import Flag
+from jaxcal.methods.base import REF_KEY, SHARED_FLAGS, Fitted, Log, Method, ModelError, labelled_sensors, rms, units
+from jaxcal.methods.quality import refit_quality
 from jaxcal.normalise import Bounds
 from jaxcal.polynomial import CubicCal, cubic_calibrate, degree_of, fit_cubic, n_monomials, n_params
 from jaxcal.recording import Recording
@@ -41,6 +44,13 @@ class CubicOptions(NamedTuple):
     sensors: tuple[str, ...] | None = None
     degree: int = 3
     ridge: float = 0.0
+
+    FLAGS = {
+        "sensors": SHARED_FLAGS["sensors"],
+        "degree": Flag("--degree", flags.count(1, 9), None, "polynomial degree", "D"),
+        "ridge": Flag("--ridge", flags.real(0.0, 1e12, open_low=False), None,
+                      "ridge penalty on the polynomial coefficients", "R"),
+    }
 
 
 def fit(rec: Recording, options: CubicOptions, log: Log) -> Fitted:
@@ -134,4 +144,5 @@ METHOD = Method(
     "cubic", fit, apply, CubicOptions,
     "polynomial (default cubic, all cross terms) model x = f(y) per sensor (thesis 2.1.2); needs acc_ref/gyr_ref",
     check,
+    quality=refit_quality,
 )

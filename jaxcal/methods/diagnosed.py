@@ -49,10 +49,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from jaxcal import flags
 from jaxcal.constants import G0, SENSORS
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import vocabulary as V
 from jaxcal.diagnose.vocabulary import InverseContext, invert_nonlinearity, unshift
+from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     Fitted,
     Log,
@@ -77,6 +79,7 @@ __all__ = [
     "diagnosed_model_state",
     "invert_nonlinearity",
     "unshift",
+    "without_effect",
     "METHOD",
 ]
 
@@ -122,6 +125,10 @@ class DiagnosedOptions(NamedTuple):
     """
 
     baseline: str = "diag"
+
+    FLAGS = {"baseline": Flag("--baseline", flags.choice("diag", "affine"), None, "baseline sensor model diagnosed "
+                              "against: diag (thesis eq. 4.6) or affine (eq. 2.3), as `jaxcal diagnose --baseline`",
+                              "diag|affine")}
 
 
 # ----------------------------------------------------------------------------- diagnosis -> state
@@ -329,6 +336,22 @@ def check(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str,
                 raise ModelError(f"state/{s}/{k} has shape {np.shape(v)}, expected {shapes[k]}")
         if any("temp" in V.REGISTRY[k].needs for k in p if k in V.REGISTRY) and "T0" not in p:
             raise ModelError(f"state/{s}: temperature terms without their reference temperature T0")
+
+
+def without_effect(model: Any, sensor: str, name: str) -> Any:
+    """A ``diagnosed`` model with one carried effect dropped (baseline and the other effects at their
+    joint refit values, not refitted; ``T0`` dropped with the last temperature term).
+
+    Args:
+        model: the diagnosed :class:`~jaxcal.methods.CalibrationModel`.
+        sensor: the effect's sensor.
+        name: the effect.
+    """
+    st = {s: dict(p) for s, p in model.state.items()}
+    st[sensor].pop(name)
+    if "T0" in st[sensor] and not any(k.startswith("temperature") for k in st[sensor]):
+        st[sensor].pop("T0")
+    return type(model)("diagnosed", model.sensors, st, model.meta)
 
 
 METHOD = Method(

@@ -15,6 +15,7 @@ from jaxcal.constants import PHYS_UNIT
 from jaxcal.linear import fit_affine
 from jaxcal.methods.base import (
     REF_KEY,
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -25,6 +26,7 @@ from jaxcal.methods.base import (
     rms,
     units,
 )
+from jaxcal.methods.quality import refit_quality
 from jaxcal.recording import Recording
 from jaxcal.sensor import Affine, LinearCal
 
@@ -39,6 +41,8 @@ class LinearOptions(NamedTuple):
     """
 
     sensors: tuple[str, ...] | None = None
+
+    FLAGS = {"sensors": SHARED_FLAGS["sensors"]}
 
 
 def fit(rec: Recording, options: LinearOptions, log: Log) -> Fitted:
@@ -74,4 +78,5 @@ METHOD = Method(
     "linear", fit, apply_linear_state, LinearOptions,
     "12-parameter affine model per sensor (thesis eq. 3.1-3.5); needs acc_ref/gyr_ref",
     check_linear_state,
+    quality=refit_quality,
 )

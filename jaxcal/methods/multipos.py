@@ -14,9 +14,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from jaxcal import flags
 from jaxcal.constants import EARTH_RATE, SENSORS
+from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     GSENS_KEY,
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -41,7 +44,8 @@ from jaxcal.multipos import (
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "detect_options", "determined_folds", "fit", "heldout", "multipos_config"]
+__all__ = ["METHOD", "MultiposOptions", "detect_options", "determined_folds", "fit", "heldout", "multipos_config",
+           "quality"]
 
 
 class MultiposOptions(NamedTuple):
@@ -83,6 +87,29 @@ class MultiposOptions(NamedTuple):
     rest_window: float = 1.0
     g_sensitivity: bool = False
     latitude: float | None = None
+
+    FLAGS = {
+        "turns": Flag("--turns", flags.turns, None, "whole turns about the vertical (e.g. turned flat on a table), "
+                      "start-end in seconds; their axes are read from the accelerometer at the rests around them (no "
+                      "labels)", "T0-T1[,T0-T1...]", show_default="none"),
+        "partial": Flag("--partial", None, None, "when the poses do not determine every combination, fit only those "
+                        "they do and leave the rest as recorded (recordings in g and rad/s; an undetermined gyroscope "
+                        "is not calibrated) instead of refusing", const=True, show_default="refuse"),
+        "acc_model": Flag("--acc-model", flags.choice("9", "12"), None, "accelerometer model: 9 (3 scales, 3 "
+                          "misalignment angles, bias) or 12 (full 3x3 and bias)", "9|12"),
+        "gyro_bias": Flag("--gyro-bias", flags.choice("static", "init"), None,
+                          "gyro bias from all rests (static) or the initial rest only (init, as imu_tk)", "static|init"),
+        "datasheet_prior": Flag("--datasheet-prior", None, None, "MAP fit with the recording's datasheet scales "
+                                "(acc_lsb_per_g, gyr_lsb_per_rads) as prior centre, tolerances --prior-scale and "
+                                "--prior-cross (results/real.md: MPU-6050 held out 0.79 -> 0.66 mg)", const=True,
+                                show_default="off"),
+        "g_sensitivity": SHARED_FLAGS["g_sensitivity"],
+        "latitude": Flag("--latitude", flags.real(-90.0, 90.0, open_low=False), None, "the rig's latitude in degrees: "
+                         "with --g-sensitivity the vertical Earth rate (15.04 sin(latitude) deg/h, read at rest along "
+                         "gravity) is taken out of G instead of left in its trace", "DEG",
+                         show_default="none: left in G"),
+        **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window")},
+    }
 
 
 def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
@@ -249,8 +276,43 @@ def determined_folds(data: Any, whole: Any, ho: Any) -> tuple[np.ndarray, np.nda
     return acc_ok, gyr_ok
 
 
+def _without_g(rec: Recording, options: MultiposOptions, model: Any, log: Log) -> dict[str, Any]:
+    """The same leave-one-pose-out figure of ``multipos`` without ``--g-sensitivity``, so a user sees
+    whether fitting ``G`` helped this session (on the MPU-6050's 10 poses it does not; results/real.md)."""
+    log("held out without --g-sensitivity, for comparison ...")
+    plain = options._replace(g_sensitivity=False, latitude=None)
+    try:
+        q = heldout(rec, plain, model.meta)
+    except ModelError as e:
+        return {"error": str(e)}
+    return {k: q[k] for k in ("acc_rms_mg", "gyr_median_deg", "how")}
+
+
+def quality(rec: Recording, options: MultiposOptions, model: Any, *, held_out: bool = True,
+            log: Log | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """In-sample quality from the fit's summary (``meta["fit_quality"]``: all poses and
+    transitions) and the leave-one-pose-out figure (:func:`heldout`); with ``--g-sensitivity``
+    also that figure without ``G`` (``without_g_sensitivity``).
+
+    The arguments and rows of a method's ``quality`` (:data:`jaxcal.methods.quality.QualityFn`).
+    """
+    q = model.meta.get("fit_quality", {})
+    ins = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
+           "how": "all poses and transitions"}
+    if not held_out:
+        return ins, None
+    try:
+        ho = heldout(rec, options, model.meta)
+    except ModelError as e:
+        return ins, {"error": str(e)}
+    if options.g_sensitivity:
+        ho["without_g_sensitivity"] = _without_g(rec, options, model, log or (lambda msg: None))
+    return ins, ho
+
+
 METHOD = Method(
     "multipos", fit, apply_linear_state, MultiposOptions,
     "static poses joined by rotations (Tedaldi et al. 2014); no labels, no datasheet values",
     check_linear_state,
+    quality=quality,
 )

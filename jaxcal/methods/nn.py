@@ -13,8 +13,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS, PHYS_UNIT, SENSORS
-from jaxcal.methods.base import REF_KEY, Fitted, Log, Method, ModelError, holdout_mask, labelled_sensors, recording_spec, units
+from jaxcal import flags
+from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_DEGS, GYR_RANGE_RADS, PHYS_UNIT, SENSORS
+from jaxcal.flags import Flag
+from jaxcal.methods.base import (
+    REF_KEY,
+    SHARED_FLAGS,
+    Fitted,
+    Log,
+    Method,
+    ModelError,
+    holdout_mask,
+    labelled_sensors,
+    recording_spec,
+    units,
+)
+from jaxcal.methods.quality import early_stopping_quality
 from jaxcal.nn import MLP, NNCalibration, fit_nn, nn_calibrate
 from jaxcal.normalise import Bounds, bounds_from_spec
 from jaxcal.recording import Recording
@@ -61,6 +75,27 @@ class NNOptions(NamedTuple):
     min_rel_delta: float = 1e-3
     warm_start: bool = True
     row_chunk: int | None = 200
+
+    # row_chunk has no flag: a memory layout knob, not a calibration choice
+    FLAGS = {
+        "seed": SHARED_FLAGS["seed"],
+        "sensors": SHARED_FLAGS["sensors"],
+        "widths": Flag("--widths", flags.int_tuple, None, "hidden widths, e.g. 7500 or 5,10,5", "W[,W...]"),
+        "slope": Flag("--slope", flags.real(0.0, 1.0, open_low=False), None, "leaky-ReLU slope in [0, 1]", "A"),
+        "learning_rate": Flag("--lr", flags.real(0.0, 10.0), None, "Adam learning rate", "LR"),
+        "patience": Flag("--patience", flags.count(1, 10**9), None, "early-stopping patience in epochs", "N"),
+        "max_epochs": Flag("--max-epochs", flags.count(1, 10**9), None, "maximum full-batch epochs", "N"),
+        "val_fraction": Flag("--val-fraction", flags.real(0.0, 0.99), None, "share of labelled samples held out for "
+                             "early stopping, whole sequences if `seq` is given", "F"),
+        "acc_range": Flag("--acc-range", flags.real(0.0, 1e6), None, "accelerometer full scale in g for eq. 3.6 bounds",
+                          "G"),
+        "gyr_range": Flag("--gyr-range", flags.real(0.0, 1e6), flags.degs_to_rads,
+                          "gyroscope full scale in deg/s for eq. 3.6 bounds", "DEG_S", show_default=GYR_RANGE_DEGS),
+        "min_rel_delta": Flag("--min-rel-delta", flags.real(0.0, 1.0, open_low=False), None,
+                              "relative fall of the validation loss that counts as an improvement", "R"),
+        "warm_start": Flag("--no-warm-start", None, None, "start Adam from the random initialisation, not from the "
+                           "ridge least-squares output layer", const=False, show_default="warm start"),
+    }
 
 
 NN_MEMORY_LIMIT = 16 * 2**30  # bytes: a full-batch fit that needs more is refused before it starts
@@ -205,4 +240,5 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
     return out
 
 
-METHOD = Method("nn", fit, apply, NNOptions, "MLP sensor model per sensor (thesis section 3.3); needs acc_ref/gyr_ref")
+METHOD = Method("nn", fit, apply, NNOptions, "MLP sensor model per sensor (thesis section 3.3); needs acc_ref/gyr_ref",
+                quality=early_stopping_quality)

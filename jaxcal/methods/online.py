@@ -8,14 +8,18 @@ import time
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from jaxcal import field
+from jaxcal import field, flags
 from jaxcal import multipos as mp
 from jaxcal.constants import SENSORS
+from jaxcal.eval import seqsplit
+from jaxcal.eval.heldout import fold_errors, stream_segments
+from jaxcal.eval.scores import QualityRow, quality_row, score_cal
+from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     GSENS_KEY,
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -23,6 +27,7 @@ from jaxcal.methods.base import (
     affine_state,
     apply_linear_state,
     check_linear_state,
+    datasheet_cals,
     gsens_of,
     linear_state,
     recording_dt,
@@ -32,13 +37,12 @@ from jaxcal.methods.base import (
     units,
 )
 from jaxcal.online import OnlineHP, fit_online_recording
-from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices, take_rows
+from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices
 from jaxcal.sensor import Diag, LinearCal
-from jaxcal.sequences import sequence_bounds
 from jaxcal.static import detect_static
 
 __all__ = ["METHOD", "FieldSetup", "OnlineOptions", "RestSequences", "field_setup", "fit", "quality", "rest_seq_recording",
-           "rest_sequences", "rest_spec", "seq_split_quality"]
+           "rest_sequences", "rest_spec"]
 
 
 class OnlineOptions(NamedTuple):
@@ -89,6 +93,25 @@ class OnlineOptions(NamedTuple):
     folds: int = 10
     residuals: str = "rests"
     g_sensitivity: bool = False
+
+    FLAGS = {
+        "kind": Flag("--kind", flags.choice("affine", "diag"), None, "filter model: affine (scale, cross-axis, bias) "
+                     "or diag (scale, bias)", "affine|diag", show_default="affine with seq ids, diag between rests"),
+        "sigma_acc": Flag("--sigma-acc", flags.real(0.0, 1.0), None, "accelerometer noise std of the filter, in g",
+                          "G", show_default="measured at the rests; 1.8e-5 with seq ids"),
+        "n_iter": Flag("--n-iter", flags.count(1, 100), None, "Gauss-Newton iterations per sequence", "N",
+                       show_default="4"),
+        "forgetting": Flag("--forgetting", flags.real(0.0, 1.0), None,
+                           "information forgetting factor per sequence, in (0, 1]", "L"),
+        "rest_pad": Flag("--rest-pad", flags.real(0.0, 1e6), None, "seconds of each rest streamed with the motions "
+                         "around it (recordings without seq ids)", "SEC"),
+        "folds": Flag("--folds", flags.count(2, 1000), None, "interleaved rest folds of the held-out figure", "K"),
+        "residuals": Flag("--residuals", flags.choice("rests", "all"), None, "between rests: the accelerometer "
+                          "residuals at the rests only, or at every sample (the simulation's recipe; motions carry "
+                          "translational acceleration)", "rests|all"),
+        **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window",
+                                        "g_sensitivity")},
+    }
 
 
 class RestSequences(NamedTuple):
@@ -171,15 +194,6 @@ def _check_options(options: OnlineOptions) -> None:
         raise ModelError(f"online: --forgetting must lie in (0, 1], got {options.forgetting}")
     if int(options.folds) < 2:
         raise ModelError(f"online: --folds must be at least 2, got {options.folds}")
-
-
-def _fit_segments(rec: Recording, segs: np.ndarray, dt: float, acc_spec: Diag | None, gyr_spec: Diag | None,
-                  hp: OnlineHP, kind: str) -> tuple[LinearCal, LinearCal]:
-    """The filter streamed over the sample ranges ``segs`` (one sequence each, in order)."""
-    idx = np.concatenate([np.arange(a, b) for a, b in segs])
-    seq = np.concatenate([np.full(b - a, k) for k, (a, b) in enumerate(segs)])
-    acc, gyr = np.asarray(rec.acc, np.float64)[idx], np.asarray(rec.gyr, np.float64)[idx]
-    return fit_online_recording(acc, gyr, seq, dt, acc_spec, gyr_spec, hp, kind)
 
 
 class FieldSetup(NamedTuple):
@@ -324,134 +338,55 @@ def _fit_seq(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, di
     return state, meta
 
 
-def _score(cals: tuple[Any, Any], data: Any) -> tuple[np.ndarray, np.ndarray]:
-    """Per-rest ``| |f| - 1 g |`` (g) and per-motion carried-gravity angle (rad, NaN where unusable)
-    of an ``(acc, gyr)`` pair without g-sensitivity (:func:`jaxcal.field.rest_scores`)."""
-    return field.rest_scores(field.FieldInit(*cals, np.zeros((3, 3))), data)
+def _seq_quality(rec: Recording, options: OnlineOptions, cals: tuple[LinearCal, LinearCal],
+                 held_out: bool) -> tuple[QualityRow, QualityRow | None]:
+    """:func:`quality` on a recording with ``seq`` ids (:mod:`jaxcal.eval.seqsplit`): each sequence
+    scored by its first and last samples (``| |f| - 1 g |`` there, and the gravity carried from the
+    first to the last); held out: a time split, fitted on the first 80 % of the sequences and
+    scored on the last 20 %, beside the datasheet values it starts from."""
+    acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
+
+    def fit_score(train: seqsplit.Bounds, test: seqsplit.Bounds) -> seqsplit.Errors:
+        c = stream_segments(rec.acc, rec.gyr, np.asarray(train), recording_dt(rec), acc_spec, gyr_spec,
+                            _hp(options, None), _kind(options, False))
+        return score_cal(*c, seqsplit.ends_data(rec, test))
+
+    return seqsplit.time_split_rows(rec, held_out, lambda bounds: score_cal(*cals, seqsplit.ends_data(rec, bounds)),
+                                    fit_score, "fitted", datasheet_cals(rec))
 
 
-def _row(ea: np.ndarray, eg: np.ndarray, how: str) -> dict[str, Any]:
-    eg = eg[np.isfinite(eg)]
-    return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),
-            "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None, "how": how}
-
-
-HELD_OUT_SHARE = 0.2  # online on seq ids: the last fifth of the sequences is the held-out time split
-
-
-def _ends_data(rec: Recording, bounds: list[tuple[int, int]]) -> Any:
-    """Each sequence's first and last samples as two poses with the sequence between them
-    (:func:`jaxcal.multipos.prepare`); transitions ``2k`` are the sequences, the others join two
-    sequences and are not scored."""
-    iv = np.array([p for a, b in bounds for p in ((a, a + 1), (b - 1, b))], int)
-    return mp.prepare(np.asarray(rec.t, np.float64), rec.acc, rec.gyr, iv,
-                      gyr_limit=mp.DetectOptions.for_recording(rec).gyr_limit)
-
-
-def _spec_score(rec: Recording, test: list) -> tuple[np.ndarray, np.ndarray] | None:
-    """:func:`_score` of the datasheet conversion alone (the starting point of the ``seq`` methods)
-    on the sequences ``test``, or ``None`` without datasheet values."""
-    specs = [recording_spec(rec, s) for s in SENSORS]
-    if any(sp is None for sp in specs):
-        return None
-    with jax.enable_x64(True):
-        cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
-                     for sp in specs)
-        cals = tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
-    return _score(cals, _ends_data(rec, test))
-
-
-def _time_split_rows(rec: Recording, held_out: bool, score: Any, fit_score: Any, verb: str) -> tuple[dict, dict | None]:
-    """In-sample and time-split rows on a recording with ``seq`` ids: ``score(bounds)`` scores the
-    sequences with sample ranges ``bounds``; ``fit_score(train, test)`` fits on the ``train``
-    sequences (the first 80 %) and scores the ``test`` ones (the last 20 %)."""
-    starts, ends = sequence_bounds(rec.seq)
-    bounds = [(int(a), int(b)) for a, b in zip(starts, ends) if b - a >= 2]
-    M = len(bounds)
-    ea, eg = score(bounds)
-    ins = _row(ea, eg[::2], f"first and last samples of all {M} sequences")
-    if not held_out:
-        return ins, None
-    k = max(1, int(round(HELD_OUT_SHARE * M)))
-    if M - k < 2:
-        return ins, {"error": f"{M} sequences: too few for a held-out time split"}
+def _field_held_out(fs: FieldSetup, options: OnlineOptions, log: Log | None) -> QualityRow:
+    """:func:`quality`'s held-out row between rests: ``folds`` interleaved rest folds
+    (:func:`jaxcal.field.fold_fits`) scored by :func:`jaxcal.eval.heldout.fold_errors`, beside
+    the same folds' initial calibrations."""
+    P = len(fs.rests.intervals)
+    F = min(int(options.folds), P - 1)
+    if log:
+        log(f"online held out: {F} rest folds, each initialised and streamed without its rests ...")
     try:
-        ea, eg = fit_score(bounds[: M - k], bounds[M - k:])
-    except (ValueError, ModelError) as e:
-        return ins, {"error": f"time split: {e}"}
-    row = _row(ea, eg[::2], f"time split: {verb} on the first {M - k} sequences, scored on the last {k} "
-               "(their first and last samples)")
-    spec = _spec_score(rec, bounds[M - k:])
-    if spec is not None:
-        row["initial_guess"] = _row(spec[0], spec[1][::2], "the same sequences: the datasheet values alone")
-    return ins, row
-
-
-def _seq_quality(rec: Recording, options: OnlineOptions, model: Any, cals: tuple[Any, Any],
-                 held_out: bool) -> tuple[dict, dict | None]:
-    """:func:`quality` on a recording with ``seq`` ids: each sequence scored by its first and last
-    samples (``| |f| - 1 g |`` there, and the gravity carried from the first to the last); held out:
-    a time split, fitted on the first 80 % of the sequences and scored on the last 20 %."""
-
-    def fit_score(train: list, test: list) -> tuple[np.ndarray, np.ndarray]:
-        acc_spec, gyr_spec = recording_spec(rec, "acc"), recording_spec(rec, "gyr")
-        c = _fit_segments(rec, np.asarray(train), recording_dt(rec), acc_spec, gyr_spec, _hp(options, None),
-                          _kind(options, False))
-        return _score(c, _ends_data(rec, test))
-
-    return _time_split_rows(rec, held_out, lambda bounds: _score(cals, _ends_data(rec, bounds)), fit_score, "fitted")
-
-
-def _applied_score(model: Any, rec: Recording, bounds: list[tuple[int, int]]) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_score` of any model from its applied output (g, rad/s) at the sequences' ends;
-    a sequence whose raw gyro saturates is not scored."""
-    out = model.apply(rec)
-    if "acc_cal" not in out or "gyr_cal" not in out:
-        raise ModelError("the sequences' score needs a model of both sensors")
-    iv = np.array([p for a, b in bounds for p in ((a, a + 1), (b - 1, b))], int)
-    d = mp.prepare(np.asarray(rec.t, np.float64), np.asarray(out["acc_cal"], np.float64),
-                   np.asarray(out["gyr_cal"], np.float64), iv)
-    d = d._replace(seg_ok=np.asarray(d.seg_ok) & np.asarray(_ends_data(rec, bounds).seg_ok))
-    ident = LinearCal(np.eye(3), np.zeros(3))
-    return _score((ident, ident), d)
-
-
-def seq_split_quality(method: str, rec: Recording, options: Any, model: Any, *, held_out: bool = True,
-                      log: Log | None = None) -> tuple[dict, dict | None]:
-    """In-sample and held-out quality of any method's model on a recording with ``seq`` ids, from
-    its applied output (as :func:`quality` scores ``online``): each sequence by its first and last
-    samples (``| |f| - 1 g |`` there, and the gravity carried from the first to the last). Held
-    out: a time split, ``method`` refitted on the first 80 % of the sequences and scored on the
-    last 20 %.
-
-    Args:
-        method: the registered method's name (refitted for the held-out row).
-        rec: the recording the model was fitted on (with ``seq``).
-        options: the fit's options.
-        model: the fitted :class:`~jaxcal.methods.CalibrationModel`.
-        held_out: also compute the held-out row.
-        log: progress sink, or ``None``.
-
-    Returns:
-        ``(in_sample, held_out)`` rows (``held_out`` ``None`` when not asked for).
-    """
-    from jaxcal import methods  # the registry imports this module
-
-    if rec.seq is None:
-        raise ModelError(f"{method}: the sequences' score needs seq ids")
-
-    def fit_score(train: list, test: list) -> tuple[np.ndarray, np.ndarray]:
-        cut, rows = test[0][0], np.arange(rec.n)
-        if log is not None:
-            log(f"held out: refitting {method} on the first {len(train)} sequences, scoring the last {len(test)} ...")
-        sub = methods.fit(method, take_rows(rec, rows < cut), options)
-        return _applied_score(sub, take_rows(rec, rows >= cut), [(a - cut, b - cut) for a, b in test])
-
-    return _time_split_rows(rec, held_out, lambda bounds: _applied_score(model, rec, bounds), fit_score, "refitted")
+        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals, fs.config,
+                                whole=fs.init)
+    except ValueError as e:
+        return {"error": str(e)}
+    how = (f"{F} interleaved rest folds (the initial rest in none), each initialised from its own rests, "
+           f"{folds.n_seq.min()}-{folds.n_seq.max()} sequences per fold")
+    skipped = np.flatnonzero(~folds.determined)
+    if skipped.size:
+        n_rests = int(np.isin(folds.rest_fold, skipped).sum())
+        how += (f"; {n_rests} rests not held out: without them the others do not determine the accelerometer "
+                "(relative singular value below OBSERVABLE_TOL), so their score would be an extrapolation")
+    if skipped.size == F:
+        return {"error": "no fold's rests determine the accelerometer without the fold: record more rests"}
+    ea, eg = fold_errors(folds.final, fs.rests.data, folds.rest_fold, folds.determined)
+    row = quality_row(ea[1:][np.isfinite(ea[1:])], eg, how)
+    ea0, eg0 = fold_errors(folds.init, fs.rests.data, folds.rest_fold, folds.determined)
+    row["initial_guess"] = quality_row(ea0[1:][np.isfinite(ea0[1:])], eg0,
+                                       "the same folds: the initial calibration from the rests, before the filter")
+    return row
 
 
 def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: bool = True,
-            log: Log | None = None) -> tuple[dict, dict | None]:
+            log: Log | None = None) -> tuple[QualityRow, QualityRow | None]:
     """In-sample and held-out quality of an ``online`` model on the rests of its recording:
     ``| |f| - 1 g |`` RMS over the rests (mg) and the median carried-gravity angle over the
     motions between them (deg). Held out: ``folds`` interleaved rest folds; fold ``k`` streams the
@@ -476,40 +411,13 @@ def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: boo
         cals = tuple(LinearCal.from_forward(affine_state(model.state[s])) for s in SENSORS)
         cals = tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
     if rec.seq is not None:
-        return _seq_quality(rec, options, model, cals, held_out)
+        return _seq_quality(rec, options, cals, held_out)
     try:
         fs = field_setup(rec, options)
     except ModelError as e:
         return {"error": str(e)}, ({"error": str(e)} if held_out else None)
-    G = gsens_of(model.state)
-    cal = field.FieldInit(*cals, np.zeros((3, 3)) if G is None else G)
-    ins = _row(*field.rest_scores(cal, fs.rests.data), f"all {len(fs.rests.intervals)} rests")
-    if not held_out:
-        return ins, None
-    P = len(fs.rests.intervals)
-    F = min(int(options.folds), P - 1)
-    if log:
-        log(f"online held out: {F} rest folds, each initialised and streamed without its rests ...")
-    try:
-        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals, fs.config,
-                                whole=fs.init)
-    except ValueError as e:
-        return ins, {"error": str(e)}
-    how = (f"{F} interleaved rest folds (the initial rest in none), each initialised from its own rests, "
-           f"{folds.n_seq.min()}-{folds.n_seq.max()} sequences per fold")
-    skipped = np.flatnonzero(~folds.determined)
-    if skipped.size:
-        n_rests = int(np.isin(folds.rest_fold, skipped).sum())
-        how += (f"; {n_rests} rests not held out: without them the others do not determine the accelerometer "
-                "(relative singular value below OBSERVABLE_TOL), so their score would be an extrapolation")
-    if skipped.size == F:
-        return ins, {"error": "no fold's rests determine the accelerometer without the fold: record more rests"}
-    ea, eg = field.held_out_errors(folds, fs.rests.data, "final")
-    row = _row(ea[1:][np.isfinite(ea[1:])], eg, how)
-    ea0, eg0 = field.held_out_errors(folds, fs.rests.data, "init")
-    row["initial_guess"] = _row(ea0[1:][np.isfinite(ea0[1:])], eg0,
-                                "the same folds: the initial calibration from the rests, before the filter")
-    return ins, row
+    ins = quality_row(*score_cal(*cals, fs.rests.data, gsens_of(model.state)), f"all {len(fs.rests.intervals)} rests")
+    return ins, (_field_held_out(fs, options, log) if held_out else None)
 
 
 METHOD = Method(
@@ -517,6 +425,7 @@ METHOD = Method(
     "jaxcal's streaming self-calibration (affine per sensor, information filter on rotation "
     "sequences); seq ids, or rests between the motions; no labels",
     check_linear_state,
+    quality=quality,
 )
 
 

@@ -14,6 +14,7 @@ import numpy as np
 
 from jaxcal.constants import ACC_RANGE_G, GYR_RANGE_RADS, SENSORS
 from jaxcal.methods.base import (
+    SHARED_FLAGS,
     Fitted,
     Log,
     Method,
@@ -25,11 +26,12 @@ from jaxcal.methods.base import (
     sequences_of,
     units,
 )
+from jaxcal.methods.quality import seq_split_quality
 from jaxcal.online_thesis import calibrate_acc, calibrate_gyr, fit_online_thesis_recording
 from jaxcal.recording import Recording, sequence_slices
 from jaxcal.sensor import Diag
 
-__all__ = ["METHOD", "OnlineThesisOptions", "OnlineThesisState", "apply", "fit"]
+__all__ = ["METHOD", "OnlineThesisOptions", "OnlineThesisState", "apply", "fit", "quality"]
 
 
 class OnlineThesisOptions(NamedTuple):
@@ -40,6 +42,8 @@ class OnlineThesisOptions(NamedTuple):
     """
 
     seed: int = 0
+
+    FLAGS = {"seed": SHARED_FLAGS["seed"]}
 
 
 class OnlineThesisState(NamedTuple):
@@ -131,8 +135,24 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
     return out
 
 
+def quality(rec: Recording, options: OnlineThesisOptions, model: Any, *, held_out: bool = True,
+            log: Log | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
+    """In-sample and held-out quality from the model's applied output on the sequences it was
+    fitted on (:func:`jaxcal.methods.quality.seq_split_quality`: each sequence by its first and last
+    samples; held out, a time split refitted on the first 80 % of the sequences), the sequences cut
+    between rests as :func:`fit` cut them when the recording has no ``seq`` ids.
+
+    The arguments and rows of a method's ``quality`` (:data:`jaxcal.methods.quality.QualityFn`).
+    """
+    from jaxcal.methods.online import rest_seq_recording
+
+    seq_rec = rec if rec.seq is not None else rest_seq_recording(rec)  # as fit cut it
+    return seq_split_quality(seq_rec, options, model, held_out=held_out, log=log)
+
+
 METHOD = Method(
     "online-thesis", fit, apply, OnlineThesisOptions,
     "thesis chapter 4 as published: two 3-5-10-5-3 NNs self-calibrated on rotation sequences; "
     "seq ids and datasheet values, or rests between the motions",
+    quality=quality,
 )

@@ -3,14 +3,13 @@ quality in-sample and held out.
 
 * :func:`linear_parameters`: a forward affine model ``y = S x + b`` as bias (mg, deg/s), scale
   factor (ppm and % from the nominal/datasheet scale), misalignment and non-orthogonality (mrad).
-* :func:`labelled_quality`: in-sample and validation-split RMS of the labelled methods (``linear``,
-  ``cubic`` refit on the training rows; ``nn`` scored on the rows its early stopping held out).
 * :func:`describe`: the ``parameters`` / ``in_sample`` / ``held_out`` metadata entries of any
   registered method's model (CONVENTIONS.md, "Model files"); :func:`summary_lines` prints them.
 
-Held-out figures of the self-calibration methods live in their modules
-(:func:`jaxcal.methods.multipos.heldout`, :func:`jaxcal.methods.online.quality`;
-:func:`jaxcal.methods.online.seq_split_quality` for ``online-thesis``).
+The quality rows are the method's own: each :class:`~jaxcal.methods.base.Method` declares its
+``quality`` (:mod:`jaxcal.methods.quality` for the methods scored through their applied output,
+:func:`jaxcal.methods.online.quality`, :func:`jaxcal.methods.multipos.quality`), scored through
+:mod:`jaxcal.eval`; a method without one has no built-in held-out score.
 """
 
 from __future__ import annotations
@@ -22,13 +21,12 @@ from typing import Any
 import numpy as np
 
 from jaxcal.constants import SENSORS
-from jaxcal.methods.base import GSENS_KEY, REF_KEY, Log, ModelError, holdout_mask, recording_spec, rms
-from jaxcal.recording import Recording, take_rows
+from jaxcal.methods.base import GSENS_KEY, Log, ModelError, recording_spec
+from jaxcal.recording import Recording
 
-__all__ = ["contradiction", "describe", "labelled_quality", "linear_parameters", "summary_lines"]
+__all__ = ["contradiction", "describe", "linear_parameters", "summary_lines"]
 
 _BIAS_UNIT = {"acc": ("mg", 1e3), "gyr": ("deg/s", 180.0 / math.pi)}
-_RMS_KEY = {"acc": ("acc_rms_mg", 1e3), "gyr": ("gyr_rms_degs", 180.0 / math.pi)}
 
 
 def linear_parameters(S: np.ndarray, b: np.ndarray, sensor: str, nominal: np.ndarray | None,
@@ -79,52 +77,6 @@ def _nominal(rec: Recording, sensor: str) -> np.ndarray | None:
     return None if spec is None else np.asarray(spec.s, np.float64)
 
 
-def _rms_entry(res: Mapping[str, float]) -> dict[str, float]:
-    """``sensor -> rms`` (g, rad/s) as ``{"acc_rms_mg", "gyr_rms_degs"}``."""
-    return {_RMS_KEY[s][0]: _RMS_KEY[s][1] * v for s, v in res.items()}
-
-
-def labelled_quality(method: str, rec: Recording, options: Any, model: Any, log: Log) -> tuple[dict, dict]:
-    """In-sample and held-out RMS against the labels of a labelled method's model.
-
-    ``linear`` and ``cubic`` are refitted on the rows :func:`~jaxcal.methods.base.holdout_mask`
-    keeps (15 %, whole sequences when ``seq`` has 4 or more) and scored on the others; ``nn`` is
-    not refitted (minutes): it is scored on the rows its early stopping held out (optimistic:
-    they chose the epoch).
-
-    Args:
-        method: ``"linear"``, ``"cubic"`` or ``"nn"``.
-        rec: the labelled recording the model was fitted on.
-        options: the fit's options.
-        model: the fitted :class:`~jaxcal.methods.CalibrationModel`.
-        log: progress sink.
-
-    Returns:
-        ``(in_sample, held_out)``: ``{"acc_rms_mg", "gyr_rms_degs"}`` for the fitted sensors, and
-        the held-out one with ``how`` (what was held out).
-    """
-    from jaxcal import methods  # the registry imports this package's modules
-
-    fraction = float(getattr(options, "val_fraction", 0.15))
-    val = holdout_mask(rec, fraction)
-    out = model.apply(rec)
-    sensors = [s for s in model.sensors if f"{s}_cal" in out]
-    refs = {s: np.asarray(getattr(rec, REF_KEY[s]), np.float64) for s in sensors}
-    if method == "nn":
-        ins = _rms_entry({s: rms((out[f"{s}_cal"] - refs[s])[~val]) for s in sensors})
-        ho = _rms_entry({s: rms((out[f"{s}_cal"] - refs[s])[val]) for s in sensors})
-        ho["how"] = f"the {int(val.sum())} rows ({fraction:.0%}) held out for early stopping (they chose the epoch)"
-        return ins | {"how": "training rows"}, ho
-    ins = _rms_entry({s: rms(out[f"{s}_cal"] - refs[s]) for s in sensors}) | {"how": "all rows"}
-    log(f"held out: refitting {method} on {int((~val).sum())} rows, scoring {int(val.sum())} ...")
-    sub = methods.fit(method, take_rows(rec, ~val), options)
-    out_va = sub.apply(take_rows(rec, val))
-    ho = _rms_entry({s: rms(out_va[f"{s}_cal"] - refs[s][val]) for s in sensors if f"{s}_cal" in out_va})
-    what = "whole sequences" if rec.seq is not None and len(np.unique(rec.seq)) >= 4 else "every k-th row"
-    ho["how"] = f"validation split: refitted on {int((~val).sum())} rows, scored on {int(val.sum())} ({what}, {fraction:.0%})"
-    return ins, ho
-
-
 def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *, held_out: bool = True) -> dict[str, Any]:
     """The metadata entries ``parameters``, ``in_sample`` and ``held_out`` of a fitted model.
 
@@ -141,7 +93,7 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
         only for linear-state models (``S``, ``b`` per sensor); ``held_out`` holds ``error`` when it
         cannot be computed, ``skipped`` when not asked for.
     """
-    from jaxcal.methods import multipos, online
+    from jaxcal import methods  # the registry imports this module
 
     params = {}
     for s in SENSORS:
@@ -152,28 +104,13 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
                 params[s]["g_sensitivity_degs_per_g"] = np.degrees(np.asarray(st[GSENS_KEY], np.float64)).tolist()
     out: dict[str, Any] = {"parameters": params} if params else {}
     try:
-        if method == "multipos":
-            q = model.meta.get("fit_quality", {})
-            out["in_sample"] = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
-                                "how": "all poses and transitions"}
-            ho = multipos.heldout(rec, options, model.meta) if held_out else None
-            if ho is not None and options.g_sensitivity:
-                ho["without_g_sensitivity"] = _without_g(rec, options, model, log)
-        elif method == "online":
-            ins, ho = online.quality(rec, options, model, held_out=held_out, log=log)
-            out["in_sample"] = ins
-        elif method == "online-thesis":
-            seq_rec = rec if rec.seq is not None else online.rest_seq_recording(rec)  # as fit cut it
-            ins, ho = online.seq_split_quality(method, seq_rec, options, model, held_out=held_out, log=log)
-            out["in_sample"] = ins
-        elif method in ("linear", "cubic", "nn"):
-            ins, ho = labelled_quality(method, rec, options, model, log) if held_out else (None, None)
+        quality = methods.get(method).quality
+        if quality is None:
+            ho = {"error": f"no built-in held-out score for '{method}'"} if held_out else None
+        else:
+            ins, ho = quality(rec, options, model, held_out=held_out, log=log)
             if ins is not None:
                 out["in_sample"] = ins
-        else:
-            ho = None
-            if held_out:
-                ho = {"error": f"no built-in held-out score for '{method}'"}
     except ModelError as e:
         ho = {"error": str(e)}
     out["held_out"] = ho if held_out else {"skipped": "not asked for, --no-held-out"}
@@ -183,20 +120,6 @@ def describe(method: str, rec: Recording, options: Any, model: Any, log: Log, *,
 
 
 _G_GAIN = 0.05  # a G fit must cut the held-out carried-gravity median by 5 % to count as an improvement
-
-
-def _without_g(rec: Recording, options: Any, model: Any, log: Log) -> dict[str, Any]:
-    """The same leave-one-pose-out figure of ``multipos`` without ``--g-sensitivity``, so a user sees
-    whether fitting ``G`` helped this session (on the MPU-6050's 10 poses it does not; results/real.md)."""
-    from jaxcal.methods import multipos  # the registry imports this module
-
-    log("held out without --g-sensitivity, for comparison ...")
-    plain = options._replace(g_sensitivity=False, latitude=None)
-    try:
-        q = multipos.heldout(rec, plain, model.meta)
-    except ModelError as e:
-        return {"error": str(e)}
-    return {k: q[k] for k in ("acc_rms_mg", "gyr_median_deg", "how")}
 
 
 # A held-out figure this much worse than the initial guess the method started from (ratio, plus an
