@@ -31,7 +31,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-import jaxcal.online as online  # noqa: E402
+import jaxcal.online.filter as online  # noqa: E402  (PROPAGATE_UNROLL is read there when the filter is traced)
 from jaxcal.online import OnlineHP, make_filter, online_scan, spec_sequences  # noqa: E402
 from jaxcal.sensor import Diag  # noqa: E402
 from jaxcal.simulate.dataset2 import dataset2  # noqa: E402
