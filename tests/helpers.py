@@ -100,3 +100,18 @@ def linear_model_file(path):
              "gyr": {"S": 7505.7 * (np.eye(3) + 0.01 * rng.normal(size=(3, 3))), "b": rng.normal(0, 20, 3)}}
     save_model(CalibrationModel("linear", ("acc", "gyr"), state, {"units": {"acc": "LSB", "gyr": "LSB"}}), path)
     return path
+
+
+def labelled_poses(n: int, max_tilt_deg: float | None, seed: int, bias=(0.0, 0.0, 0.0), **extra) -> dict[str, np.ndarray]:
+    """Static-like labelled accelerometer samples (counts at 16384 LSB/g plus ``bias`` and 2 LSB of
+    noise): directions within ``max_tilt_deg`` of z-up (None: the whole sphere); ``extra`` fields
+    added (e.g. ``temp``). Shared by test_plausibility and the issue-27 probe."""
+    rng = np.random.default_rng(seed)
+    f = rng.normal(size=(n, 3))
+    f /= np.linalg.norm(f, axis=1, keepdims=True)
+    if max_tilt_deg is not None:
+        tilt = np.radians(max_tilt_deg) * np.sqrt(rng.uniform(size=n))
+        az = rng.uniform(0, 2 * np.pi, n)
+        f = np.stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)], 1)
+    counts = np.round(f * 16384.0 + np.asarray(bias, float) + rng.normal(0, 2, (n, 3)))
+    return dict(t=np.arange(n) / 100.0, acc=counts, acc_ref=f, fs=np.asarray(100.0), acc_lsb_per_g=np.asarray(16384.0)) | extra

@@ -27,7 +27,7 @@ sys.path.insert(0, str(HERE))
 sys.path.insert(0, str(HERE.parent))  # this checkout's jaxcal, not an installed one
 DATA = HERE.parent / "data"
 
-from helpers import linear_model_file  # noqa: E402
+from helpers import labelled_poses, linear_model_file  # noqa: E402
 
 from jaxcal.cli import main  # noqa: E402
 
@@ -280,23 +280,11 @@ def _export_cases(d: Path) -> list[Case]:
     return out
 
 
-def _poses(n: int, tilt: float | None, seed: int, **kw) -> dict:
-    rng = np.random.default_rng(seed)
-    f = rng.normal(size=(n, 3))
-    f /= np.linalg.norm(f, axis=1, keepdims=True)
-    if tilt is not None:
-        a = np.radians(tilt) * np.sqrt(rng.uniform(size=n))
-        z = rng.uniform(0, 2 * np.pi, n)
-        f = np.stack([np.sin(a) * np.cos(z), np.sin(a) * np.sin(z), np.cos(a)], 1)
-    return dict(t=np.arange(n) / 100.0, acc=np.round(f * 16384.0 + rng.normal(0, 2, (n, 3))), acc_ref=f, fs=np.asarray(100.0),
-                acc_lsb_per_g=np.asarray(16384.0)) | kw
-
-
 def _apply_cases(d: Path) -> list[Case]:
     from jaxcal.methods import CalibrationModel
     from jaxcal.model_file import save_model
 
-    np.savez(d / "cap.npz", **_poses(400, 18.0, 0))
+    np.savez(d / "cap.npz", **labelled_poses(400, 18.0, 0))
     cub = d / "cubic.npz"
     assert _call(["calibrate", "--method", "cubic", d / "cap.npz", "--out", cub, "-q"])[0] == 0
 
@@ -311,14 +299,14 @@ def _apply_cases(d: Path) -> list[Case]:
     tau_m = diag(d / "dtau.npz", time_offset=np.asarray(10.0))
     tau_ok = diag(d / "dtau2.npz", time_offset=np.asarray(0.004))
     recs = {
-        "cubic over the sphere": (cub, _poses(400, None, 1), False),
-        "cubic within 15 deg": (cub, _poses(400, 15.0, 2), True),
-        "cubic tilted to 40 deg": (cub, _poses(400, 40.0, 3), False),
-        "temperature model, Kelvin as degC": (temp_m, _poses(400, None, 4, temp=np.full(400, 300.15)), False),
-        "temperature model, -40 degC": (temp_m, _poses(400, None, 5, temp=np.full(400, -40.0)), False),
-        "temperature model, 27 degC": (temp_m, _poses(400, None, 6, temp=np.full(400, 27.0)), True),
-        "time offset 10 s on a 4 s recording": (tau_m, _poses(400, None, 7), False),
-        "time offset 4 ms on a 4 s recording": (tau_ok, _poses(400, None, 8), True),
+        "cubic over the sphere": (cub, labelled_poses(400, None, 1), False),
+        "cubic within 15 deg": (cub, labelled_poses(400, 15.0, 2), True),
+        "cubic tilted to 40 deg": (cub, labelled_poses(400, 40.0, 3), False),
+        "temperature model, Kelvin as degC": (temp_m, labelled_poses(400, None, 4, temp=np.full(400, 300.15)), False),
+        "temperature model, -40 degC": (temp_m, labelled_poses(400, None, 5, temp=np.full(400, -40.0)), False),
+        "temperature model, 27 degC": (temp_m, labelled_poses(400, None, 6, temp=np.full(400, 27.0)), True),
+        "time offset 10 s on a 4 s recording": (tau_m, labelled_poses(400, None, 7), False),
+        "time offset 4 ms on a 4 s recording": (tau_ok, labelled_poses(400, None, 8), True),
     }
     out: list[Case] = []
     for name, (m, r, valid) in recs.items():

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from helpers import linear_model_file, run_cli
+from helpers import labelled_poses, linear_model_file, run_cli
 
 from jaxcal.diagnose import prepare
 from jaxcal.diagnose.gate import GATE, check_reference, reference_gate, report_gate
@@ -388,25 +388,16 @@ def test_imucal_example_with_version_2_0_is_accepted(tmp_path, capsys):
 # ----------------------------------------------------------------------------- apply: inside the model's range
 
 
-def _poses(n: int, max_tilt_deg: float | None, seed: int) -> dict[str, np.ndarray]:
-    """Static-like labelled acc samples: directions within ``max_tilt_deg`` of z-up (None: the sphere)."""
-    rng = np.random.default_rng(seed)
-    f = rng.normal(size=(n, 3))
-    f /= np.linalg.norm(f, axis=1, keepdims=True)
-    if max_tilt_deg is not None:
-        tilt = np.radians(max_tilt_deg) * np.sqrt(rng.uniform(size=n))
-        az = rng.uniform(0, 2 * np.pi, n)
-        f = np.stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), np.cos(tilt)], 1)
-    counts = np.round(f * 16384.0 + [30.0, -20.0, 10.0] + rng.normal(0, 2, (n, 3)))
-    return dict(t=np.arange(n) / 100.0, acc=counts, acc_ref=f, fs=np.asarray(100.0), acc_lsb_per_g=np.asarray(16384.0))
+def _biased_poses(n: int, max_tilt_deg: float | None, seed: int) -> dict[str, np.ndarray]:
+    return labelled_poses(n, max_tilt_deg, seed, bias=(30.0, -20.0, 10.0))
 
 
 def test_apply_refuses_a_cubic_model_outside_its_input_range(tmp_path, capsys):
     """Fitted within 18 deg of z-up, applied over the sphere: refused (it was off by 1281 g); with
     --allow-extrapolation it runs with a warning; on its own range it runs silently."""
-    np.savez(tmp_path / "cap.npz", **_poses(400, 18.0, 0))
-    np.savez(tmp_path / "sphere.npz", **_poses(400, None, 1))
-    np.savez(tmp_path / "cap2.npz", **_poses(400, 15.0, 2))
+    np.savez(tmp_path / "cap.npz", **_biased_poses(400, 18.0, 0))
+    np.savez(tmp_path / "sphere.npz", **_biased_poses(400, None, 1))
+    np.savez(tmp_path / "cap2.npz", **_biased_poses(400, 15.0, 2))
     assert run(capsys, "calibrate", "--method", "cubic", tmp_path / "cap.npz", "--out", tmp_path / "m.npz", "-q")[0] == 0
     (tmp_path / "o.npz").write_bytes(b"earlier")
     refused(capsys, ["apply", tmp_path / "m.npz", tmp_path / "sphere.npz", "--out", tmp_path / "o.npz"],
@@ -417,7 +408,7 @@ def test_apply_refuses_a_cubic_model_outside_its_input_range(tmp_path, capsys):
     code, _, err = run(capsys, "apply", tmp_path / "m.npz", tmp_path / "cap2.npz", "--out", tmp_path / "o2.npz", "-q")
     assert code == 0 and err == "", err
     with np.load(tmp_path / "o2.npz") as z:  # inside its range the model is right (mg level)
-        assert np.max(np.abs(z["acc_cal"] - _poses(400, 15.0, 2)["acc_ref"])) < 0.01
+        assert np.max(np.abs(z["acc_cal"] - _biased_poses(400, 15.0, 2)["acc_ref"])) < 0.01
 
 
 def _diagnosed_model(path: Path, **acc: Any) -> Path:
@@ -433,7 +424,7 @@ def _diagnosed_model(path: Path, **acc: Any) -> Path:
 
 @pytest.mark.parametrize("case", ["Kelvin as degC", "time offset longer than the recording"])
 def test_apply_refuses_a_diagnosed_model_outside_its_range(case, tmp_path, capsys):
-    d = _poses(400, None, 3)
+    d = _biased_poses(400, None, 3)
     if case == "Kelvin as degC":
         m = _diagnosed_model(tmp_path / "m.npz", temperature_bias=np.full(3, 1e-4), T0=np.asarray(27.0))
         d["temp"] = np.full(400, 27.0 + 273.15)
