@@ -35,7 +35,7 @@ __all__ = [
 
 KINDS = ("diag", "affine")
 # Rotation steps per iteration of the sequence propagation's compiled loop (static; bit-identical for any
-# value): 4 ran the filter 1.19x (diag) and 1.39x (affine) faster than 1, 8 and 16 less (benchmarks/online_unroll.py).
+# value); benchmarks/online_unroll.py times the choice (measured so far only on another machine's CPU).
 PROPAGATE_UNROLL = 4
 
 
