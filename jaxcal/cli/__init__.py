@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from jaxcal._version import __version__
-from jaxcal.cli import calibrate, crop, diagnose, export, importer, noise, simulate, sweep  # noqa: F401 - they register their commands
+from jaxcal.cli import calibrate, crop, diagnose, export, importer, noise, score, simulate, sweep  # noqa: F401 - they register their commands
 from jaxcal.cli.calibrate import OPTION_FLAGS
 from jaxcal.cli.core import COMMANDS, PROG, Command, UsageError, _LazyParser, _Parser, register_command
 from jaxcal.recording import RecordingError

@@ -17,7 +17,7 @@ from jaxcal.recording import atomic_output, load_recording
 # The methods (jax, flax, optimistix) are imported inside the functions that use them, so that
 # registering these commands costs nothing (`jaxcal --help`, other commands).
 
-__all__ = ["OPTION_FLAGS", "Flag"]
+__all__ = ["OPTION_FLAGS", "Flag", "applied_output"]
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -183,25 +183,33 @@ def _add_apply(p: argparse.ArgumentParser) -> None:
                         "bounds, a diagnosed model's temperature range or time offset): warn on stderr instead of refusing")
 
 
-def _run_apply(args: argparse.Namespace) -> int:
+def applied_output(model_path: str, rec_path: str, allow_extrapolation: bool) -> tuple[Any, Any, dict[str, np.ndarray]]:
+    """Load a model and a recording and apply the one to the other (``jaxcal apply``, ``jaxcal
+    score``): ``(model, recording, {"acc_cal", "gyr_cal"})``. A recording outside the model's fitted
+    range is refused naming ``--allow-extrapolation`` (with it: one warning line per problem)."""
     from jaxcal.methods import ModelError
     from jaxcal.model_file import load_model
     from jaxcal.plausible import apply_range_problems
 
-    if not args.out.lower().endswith(".npz"):
-        raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
-    _check_out_file(args.out, [args.model, args.recording])
-    model = load_model(args.model)
-    rec = load_recording(args.recording)
+    model = load_model(model_path)
+    rec = load_recording(rec_path)
     problems = apply_range_problems(model.method, model.state, model.meta, rec)
-    if problems and not args.allow_extrapolation:
-        raise UsageError(f"{args.model} on {args.recording}: {problems[0]} (--allow-extrapolation applies it anyway)")
+    if problems and not allow_extrapolation:
+        raise UsageError(f"{model_path} on {rec_path}: {problems[0]} (--allow-extrapolation applies it anyway)")
     for why in problems:
         print(f"{PROG}: warning: {why}", file=sys.stderr)
     try:
         out = model.apply(rec)
     except ModelError as e:  # the model does not suit the recording (or is malformed): say which files
-        raise ModelError(f"{args.model} on {args.recording}: {e}") from None
+        raise ModelError(f"{model_path} on {rec_path}: {e}") from None
+    return model, rec, out
+
+
+def _run_apply(args: argparse.Namespace) -> int:
+    if not args.out.lower().endswith(".npz"):
+        raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
+    _check_out_file(args.out, [args.model, args.recording])
+    model, rec, out = applied_output(args.model, args.recording, args.allow_extrapolation)
     try:
         with atomic_output(args.out) as tmp, open(tmp, "wb") as fh:
             np.savez_compressed(fh, t=np.asarray(rec.t), **out)

@@ -4,6 +4,7 @@
 
     jaxcal calibrate --method METHOD RECORDING --out MODEL.npz [--seed N] [...]
     jaxcal apply MODEL.npz RECORDING --out CALIBRATED.npz
+    jaxcal score MODEL.npz RECORDING [--out SCORE.json]
     jaxcal simulate dataset2 --out DIR [--seed N] [--labels]
     jaxcal simulate dataset1 --out DIR [--seed N]
     jaxcal import FORMAT FILE... --out REC.npz [--fs HZ] [...]

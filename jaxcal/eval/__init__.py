@@ -13,12 +13,14 @@
   rests (the 90 deg turn of a rot90x recording, the return to the start pose of a hand-held one).
 - :mod:`~jaxcal.eval.mocap`: a recording against its motion capture (``diagnose``'s held-out RMS beside
   the recording as its maker calibrated it).
+- :mod:`~jaxcal.eval.transfer`: a model's applied output scored on another recording against every
+  truth it carries (labels, sequence ends, rests, mocap): ``jaxcal score``.
 - :mod:`~jaxcal.eval.peers`: peers' and published calibrations converted to ``LinearCal``.
 
 No I/O: every function takes arrays (or a :class:`~jaxcal.recording.Recording`) and returns arrays
 or plain dicts.
 """
 
-from jaxcal.eval import checks, heldout, mocap, peers, scores, seqsplit
+from jaxcal.eval import checks, heldout, mocap, peers, scores, seqsplit, transfer
 
-__all__ = ["checks", "heldout", "mocap", "peers", "scores", "seqsplit"]
+__all__ = ["checks", "heldout", "mocap", "peers", "scores", "seqsplit", "transfer"]

@@ -17,7 +17,7 @@ from jaxcal.recording import Recording
 from jaxcal.sensor import LinearCal
 from jaxcal.sequences import sequence_bounds
 
-__all__ = ["HELD_OUT_SHARE", "Bounds", "Errors", "applied_errors", "ends_data", "seq_bounds", "time_split_rows"]
+__all__ = ["HELD_OUT_SHARE", "Bounds", "Errors", "applied_errors", "ends_data", "interval_errors", "seq_bounds", "time_split_rows"]
 
 HELD_OUT_SHARE = 0.2  # the last fifth of the sequences is the held-out time split
 
@@ -50,9 +50,26 @@ def applied_errors(acc_cal: np.ndarray, gyr_cal: np.ndarray, rec: Recording, bou
         bounds: the sequences' sample ranges.
     """
     iv = np.array([p for a, b in bounds for p in ((a, a + 1), (b - 1, b))], int)
-    d = mp.prepare(np.asarray(rec.t, np.float64), np.asarray(acc_cal, np.float64),
-                   np.asarray(gyr_cal, np.float64), iv)
-    d = d._replace(seg_ok=np.asarray(d.seg_ok) & np.asarray(ends_data(rec, bounds).seg_ok))
+    return interval_errors(acc_cal, gyr_cal, rec, iv, mp.DetectOptions.for_recording(rec).gyr_limit)
+
+
+def interval_errors(acc_cal: np.ndarray, gyr_cal: np.ndarray, rec: Recording, iv: np.ndarray,
+                    gyr_limit: float | None) -> Errors:
+    """:func:`~jaxcal.eval.scores.score_cal` of a model's applied output (g, rad/s) with the sample
+    ranges ``iv`` as poses (the identity calibration on it): per-pose ``| |f| - 1 |`` (g) and
+    per-transition carried-gravity angles (rad); a transition whose raw gyro reaches ``gyr_limit``
+    is not scored (NaN).
+
+    Args:
+        acc_cal, gyr_cal: (N, 3) the model's output on ``rec``.
+        rec: the raw recording (its gyro saturation decides which transitions are scored).
+        iv: (P, 2) the poses' sample ranges ``[a, b)``.
+        gyr_limit: the raw gyro's saturation limit, or ``None``.
+    """
+    t = np.asarray(rec.t, np.float64)
+    d = mp.prepare(t, np.asarray(acc_cal, np.float64), np.asarray(gyr_cal, np.float64), iv)
+    raw = mp.prepare(t, rec.acc, rec.gyr, iv, gyr_limit=gyr_limit)
+    d = d._replace(seg_ok=np.asarray(d.seg_ok) & np.asarray(raw.seg_ok))
     ident = LinearCal(np.eye(3), np.zeros(3))
     return score_cal(ident, ident, d)
 

@@ -39,7 +39,6 @@ from jaxcal.methods.base import (
 from jaxcal.online import OnlineHP, fit_online_recording
 from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices
 from jaxcal.sensor import Diag, LinearCal
-from jaxcal.static import detect_static
 
 __all__ = ["METHOD", "FieldSetup", "OnlineOptions", "RestSequences", "field_setup", "fit", "quality", "rest_seq_recording",
            "rest_sequences", "rest_spec"]
@@ -148,15 +147,10 @@ def rest_sequences(rec: Recording, options: OnlineOptions) -> RestSequences:
     det = mp.DetectOptions.for_recording(rec)._replace(
         init_duration=options.init_duration, min_duration=float(options.min_rest), window=float(options.rest_window))
     try:
-        _, iv, _ = mp.detect_and_fit(t, rec.acc, rec.gyr, detect=det, check=False)
-    except ValueError:
-        init = options.init_duration if options.init_duration is not None else min(30.0, 0.1 * (t[-1] - t[0]))
-        try:
-            iv = detect_static(t, rec.acc, k=3.0, init_duration=init, window=det.window, min_duration=det.min_duration,
-                               gyr=rec.gyr).intervals
-        except ValueError as e:
-            raise ModelError(f"method 'online' needs 'seq' ids, or rests between the motions; none given and rests "
-                             f"cannot be detected ({e})") from None
+        iv = mp.detect_rests(rec, det)
+    except ValueError as e:
+        raise ModelError(f"method 'online' needs 'seq' ids, or rests between the motions; none given and rests "
+                         f"cannot be detected ({e})") from None
     iv = np.asarray(iv, int)
     if len(iv) < 3:
         raise ModelError(f"method 'online' needs 'seq' ids, or rests between the motions; none given and only {len(iv)} "

@@ -24,7 +24,7 @@ from jaxcal.constants import SENSORS
 from jaxcal.methods.base import GSENS_KEY, Log, ModelError, recording_spec
 from jaxcal.recording import Recording
 
-__all__ = ["contradiction", "describe", "linear_parameters", "summary_lines"]
+__all__ = ["contradiction", "describe", "linear_parameters", "quality_text", "summary_lines"]
 
 _BIAS_UNIT = {"acc": ("mg", 1e3), "gyr": ("deg/s", 180.0 / math.pi)}
 
@@ -163,7 +163,7 @@ def _fmt3(v: Any, f: str = "+.3f") -> str:
     return "[" + ", ".join(format(float(x), f) for x in v) + "]"
 
 
-def _quality_text(q: Mapping[str, Any]) -> str:
+def quality_text(q: Mapping[str, Any]) -> str:
     if "error" in q:
         return f"not available ({q['error']})"
     if "skipped" in q:
@@ -197,15 +197,15 @@ def summary_lines(desc: Mapping[str, Any]) -> list[str]:
             rows = "; ".join(_fmt3(row, "+.4f") for row in p["g_sensitivity_degs_per_g"])
             lines.append(f"{s}: g-sensitivity G rows {rows} (deg/s)/g")
     if "in_sample" in desc:
-        lines.append(f"in-sample: {_quality_text(desc['in_sample'])}")
+        lines.append(f"in-sample: {quality_text(desc['in_sample'])}")
     if "held_out" in desc:
         ho = desc["held_out"]
-        lines.append(f"held out: {_quality_text(ho)}")
+        lines.append(f"held out: {quality_text(ho)}")
         if isinstance(ho.get("initial_guess"), Mapping):
-            lines.append(f"held out, initial guess: {_quality_text(ho['initial_guess'])}")
+            lines.append(f"held out, initial guess: {quality_text(ho['initial_guess'])}")
         plain = ho.get("without_g_sensitivity")
         if plain is not None:
-            lines.append(f"held out without --g-sensitivity: {_quality_text(plain)}")
+            lines.append(f"held out without --g-sensitivity: {quality_text(plain)}")
             with_g, without = ho.get("gyr_median_deg"), plain.get("gyr_median_deg")
             if with_g is not None and without is not None and with_g > (1.0 - _G_GAIN) * without:
                 verdict = "worse" if with_g > (1.0 + _G_GAIN) * without else f"no better (within {_G_GAIN:.0%})"

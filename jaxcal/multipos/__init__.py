@@ -71,6 +71,7 @@ from jaxcal.multipos.detect import (
     DetectOptions,
     check_turns,
     detect_and_fit,
+    detect_rests,
     fit_multipos_recording,
     fit_multipos_recording_gsens,
     fit_summary,
@@ -106,7 +107,7 @@ __all__ = [
     "MultiposConfig", "MultiposFit", "DatasheetPrior", "MPU6050_PRIOR", "fit_prepared", "fit_prepared_jit",
     "fit_multipos", "fit_acc", "fit_acc_determined", "rest_gsens",
     # recordings
-    "DetectOptions", "detect_and_fit", "fit_multipos_recording", "fit_multipos_recording_gsens", "fit_summary",
+    "DetectOptions", "detect_and_fit", "detect_rests", "fit_multipos_recording", "fit_multipos_recording_gsens", "fit_summary",
     "check_turns", "rest_design_sv",
     # what the poses determine
     "Observability", "observability", "check_observable",

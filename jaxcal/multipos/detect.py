@@ -29,6 +29,7 @@ __all__ = [
     "default_gyr_limit",
     "DetectOptions",
     "detect_and_fit",
+    "detect_rests",
     "TURN_TOL_DEG",
     "check_turns",
     "fit_summary",
@@ -111,6 +112,31 @@ def detect_and_fit(
     if check:
         check_observable(observability(data, fit.acc, fit.gyr, turns=turns))
     return fit, det.intervals, det.k
+
+
+FALLBACK_K = 3.0  # detect_rests's single threshold multiplier when the scan finds fewer than 9 rests
+
+
+def detect_rests(rec: Recording, detect: DetectOptions) -> np.ndarray:
+    """The rests of a recording (both sensors): :func:`detect_and_fit`'s threshold scan (no fit
+    check); with fewer than 9 rests for every threshold, :func:`~jaxcal.static.detect_static` with
+    ``k =`` :data:`FALLBACK_K` and the gyro gate on. Returns (P, 2) sample ranges ``[a, b)``.
+
+    Args:
+        rec: the recording (``t``, ``acc``, ``gyr``).
+        detect: :class:`DetectOptions` (``init_duration``, ``window``, ``min_duration`` also set the fallback's).
+
+    Raises:
+        ValueError: the fallback finds no rest either (its own message).
+    """
+    t = np.asarray(rec.t, np.float64)
+    try:
+        _, iv, _ = detect_and_fit(t, rec.acc, rec.gyr, detect=detect, check=False)
+    except ValueError:
+        init = detect.init_duration if detect.init_duration is not None else min(30.0, 0.1 * (t[-1] - t[0]))
+        iv = detect_static(t, rec.acc, k=FALLBACK_K, init_duration=init, window=detect.window,
+                           min_duration=detect.min_duration, gyr=rec.gyr).intervals
+    return np.asarray(iv, int)
 
 
 def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: MultiposConfig, detect: DetectOptions,
