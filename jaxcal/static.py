@@ -34,6 +34,8 @@ __all__ = [
     "rest_gyr_baseline",
     "threshold_scan",
     "static_mask",
+    "initial_rest_bias",
+    "REST_GYR_STD_MAX",
 ]
 
 
@@ -218,3 +220,33 @@ def static_mask(n: int, intervals: np.ndarray) -> np.ndarray:
     for a, b in np.asarray(intervals).reshape(-1, 2):
         m[a:b] = True
     return m
+
+
+REST_GYR_STD_MAX = 0.02  # rad/s (1.1 deg/s) per axis: a stretch whose gyro varies more is no rest
+
+
+def initial_rest_bias(t: np.ndarray, gyr: np.ndarray, seconds: float) -> np.ndarray:
+    """The gyroscope's start-up bias of this power-up: the mean of its calibrated output (rad/s)
+    over the first ``seconds`` of the recording, which must be at rest (the Earth's rate, at most
+    7.3e-5 rad/s, is left in). A gyro's bias changes at every power-up (the MPU-6050's by up to
+    0.10 deg/s on its next recording), so this is the usual fix for a bias fitted on another
+    recording.
+
+    Args:
+        t: (N,) sample times (s).
+        gyr: (N, 3) calibrated gyroscope output (rad/s).
+        seconds: the length of the initial rest (s), > 0.
+
+    Raises:
+        ValueError: fewer than 2 samples in the stretch, or a per-axis standard deviation above
+            :data:`REST_GYR_STD_MAX` (the device moved).
+    """
+    t = np.asarray(t, np.float64)
+    g = np.asarray(gyr, np.float64)[t - t[0] < seconds]
+    if len(g) < 2:
+        raise ValueError(f"the first {seconds:g} s hold {len(g)} sample(s); a rest needs two or more")
+    sd = g.std(axis=0)
+    if sd.max() > REST_GYR_STD_MAX:
+        raise ValueError(f"the first {seconds:g} s are not at rest: the calibrated gyro varies by "
+                         f"{np.degrees(sd.max()):.3g} deg/s (std; at most {np.degrees(REST_GYR_STD_MAX):.2g} at rest)")
+    return g.mean(axis=0)

@@ -83,7 +83,8 @@ def test_linear_calibrate_apply_recovers_truth(sim, tmp_path, capsys):
         code, _, err = run(capsys, "apply", sim / "lin.npz", sim / f"{name}.npz", "--out", out)
         assert code == 0, err
         with np.load(out) as z:
-            assert set(z.files) == {"t", f"{s}_cal"}
+            assert {"t", f"{s}_cal", s, f"{s}_unit"} <= set(z.files)  # a recording too (tests/test_cli_apply_output.py)
+            np.testing.assert_array_equal(z[s], z[f"{s}_cal"])
             e = np.linalg.norm(z[f"{s}_cal"] - load_recording(sim / f"{name}.npz").to_dict()[f"{s}_ref"], axis=1)
         # Rounding to integer LSB leaves the floor measured with the true parameters; the
         # fitted model must be within 50 % of it (spec conversion is ~1000x worse).

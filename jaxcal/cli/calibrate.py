@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _progress, register_command
+from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _progress, _real, register_command
 from jaxcal.flags import Flag
 from jaxcal.recording import atomic_output, load_recording
 
@@ -163,6 +163,9 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     save_model(model, args.out)
     for line in summary_lines(desc):
         print(line)
+    if log and "gyr" in model.sensors:
+        log(f"note: {STARTUP_BIAS_NOTE}; `jaxcal apply --rest-bias SEC` takes another recording's from its first SEC "
+            "seconds at rest")
     if log:
         log(f"wrote {args.out} ({args.method}, sensors {','.join(model.sensors)}) in {time.perf_counter() - t0:.1f} s")
     return 0
@@ -175,12 +178,21 @@ def _add_apply(p: argparse.ArgumentParser) -> None:
     p.add_argument("model", metavar="MODEL", help="model file written by `jaxcal calibrate`")
     p.add_argument("recording", metavar="RECORDING", help="recording to calibrate (.npz or .csv)")
     p.add_argument(
-        "--out", required=True, metavar="OUT.npz", help="output: t, and acc_cal (g) and/or gyr_cal (rad/s)"
-    )
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+        "--out", required=True, metavar="OUT.npz",
+        help="output: a recording every command reads (acc in g, gyr in rad/s, every other field kept), plus "
+             "t, and acc_cal (g) and/or gyr_cal (rad/s)")
+    p.add_argument("--rest-bias", type=_real(0.0), default=None, metavar="SEC",
+                   help="replace the model's gyro bias by this power-up's: the mean calibrated gyro over the recording's "
+                        "first SEC seconds, which must be at rest (default: the model's bias)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines or notes on stderr")
     p.add_argument("--allow-extrapolation", action="store_true",
                    help="apply even where the recording lies outside the model's fitted range (a cubic model's input "
                         "bounds, a diagnosed model's temperature range or time offset): warn on stderr instead of refusing")
+
+
+STARTUP_BIAS_NOTE = ("a gyro's start-up bias changes at every power-up (the MPU-6050's by up to 0.10 deg/s on its next "
+                     "recording), so the model's gyro bias is its fit recording's")
+"""The note ``calibrate`` and ``apply`` print when a gyroscope is calibrated (issue 29)."""
 
 
 def applied_output(model_path: str, rec_path: str, allow_extrapolation: bool) -> tuple[Any, Any, dict[str, np.ndarray]]:
@@ -206,19 +218,52 @@ def applied_output(model_path: str, rec_path: str, allow_extrapolation: bool) ->
 
 
 def _run_apply(args: argparse.Namespace) -> int:
+    from jaxcal.recording import RecordingError, save_recording, validate_recording, with_calibrated
+
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: calibrated output is written as .npz")
     _check_out_file(args.out, [args.model, args.recording])
     model, rec, out = applied_output(args.model, args.recording, args.allow_extrapolation)
-    try:
-        with atomic_output(args.out) as tmp, open(tmp, "wb") as fh:
-            np.savez_compressed(fh, t=np.asarray(rec.t), **out)
-    except OSError as e:
-        raise UsageError(f"{args.out}: cannot write ({e.strerror or e})") from None
     log = _progress(args)
+    if args.rest_bias is not None:
+        out = _rest_bias(out, rec, args.rest_bias, log)
+    elif "gyr_cal" in out and log:
+        log(f"note: {STARTUP_BIAS_NOTE}; --rest-bias SEC takes this recording's from its first SEC seconds at rest")
+    cal = with_calibrated(rec, out).replace(extra={**rec.extra, **out})
+    try:
+        validate_recording(cal, args.out)
+    except RecordingError as e:  # an implausible output is still written, as the calibrated arrays alone
+        cal = None
+        print(f"{PROG}: warning: {args.out} holds t and {', '.join(out)} only, not a recording other commands read: "
+              f"{' '.join(str(e).split())}", file=sys.stderr)
+    try:
+        if cal is not None:
+            save_recording(cal, args.out)
+        else:
+            with atomic_output(args.out) as tmp, open(tmp, "wb") as fh:
+                np.savez_compressed(fh, t=np.asarray(rec.t), **out)
+    except (OSError, RecordingError) as e:
+        raise UsageError(f"{args.out}: cannot write ({getattr(e, 'strerror', None) or e})") from None
     if log:
-        log(f"wrote {args.out}: {', '.join(out)} for {rec.n} samples")
+        log(f"wrote {args.out}: {', '.join(out)} for {rec.n} samples" + (" (a recording every command reads)" if cal else ""))
     return 0
+
+
+def _rest_bias(out: dict[str, np.ndarray], rec: Any, seconds: float, log: Any) -> dict[str, np.ndarray]:
+    """``out`` with the gyro's start-up bias of this recording removed (:func:`jaxcal.static.initial_rest_bias`)."""
+    from jaxcal.static import initial_rest_bias
+
+    if "gyr_cal" not in out:
+        raise UsageError("--rest-bias: the model calibrates no gyroscope on this recording")
+    try:
+        b = initial_rest_bias(rec.t, out["gyr_cal"], seconds)
+    except ValueError as e:
+        raise UsageError(f"--rest-bias {seconds:g}: {e}") from None
+    if log:
+        log(f"--rest-bias: this power-up's gyro bias over the first {seconds:g} s: "
+            f"[{', '.join(f'{x:+.4f}' for x in np.degrees(b))}] deg/s, removed")
+    return {**out, "gyr_cal": out["gyr_cal"] - b}
+
 
 # ----------------------------------------------------------------------------- methods, version
 
@@ -251,7 +296,9 @@ register_command(
         "calibrate a recording with a model",
         _add_apply,
         _run_apply,
-        "Apply MODEL to RECORDING; write t and acc_cal (g) and/or gyr_cal (rad/s) to OUT.npz.",
+        "Apply MODEL to RECORDING; write OUT.npz, a recording every command reads (acc in g, gyr in rad/s, the "
+        "labels, pose, seq ids and other fields of RECORDING kept), which also holds acc_cal (g) and/or gyr_cal "
+        "(rad/s). The gyro bias is the model's (its fit recording's power-up); --rest-bias SEC takes this one's.",
     ),
 )
 

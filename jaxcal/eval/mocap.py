@@ -15,7 +15,7 @@ import numpy as np
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import prepare as diag_prepare
 from jaxcal.diagnose.select import linearize_baseline
-from jaxcal.recording import PER_SAMPLE_FIELDS, Recording
+from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, with_calibrated
 
 __all__ = ["as_recorded_rms", "calibrated_rms", "half", "mocap_summary"]
 
@@ -60,11 +60,7 @@ def calibrated_rms(rec, outputs: dict, sigma_by_sensor: dict[str, float]) -> dic
         both ``outputs`` and ``sigma_by_sensor``.
     """
     sens = [s for s in ("acc", "gyr") if f"{s}_cal" in outputs and s in sigma_by_sensor]
-    changes = {}
-    for s in sens:
-        changes.update({s: np.asarray(outputs[f"{s}_cal"], np.float64), f"{s}_unit": "g" if s == "acc" else "rad/s"})
-        changes.update({"acc_lsb_per_g": None, "acc_bias_lsb": None} if s == "acc" else {"gyr_lsb_per_rads": None, "gyr_bias_lsb": None})
-    cal = rec.replace(**changes)
+    cal = with_calibrated(rec, {f"{s}_cal": outputs[f"{s}_cal"] for s in sens})
     out = {}
     for s in sens:
         sd = diag_prepare(cal, pose_sigma=float(sigma_by_sensor[s])).sensors[s]

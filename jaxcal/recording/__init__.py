@@ -57,13 +57,15 @@ One module per reason to change, all re-exported here (``from jaxcal.recording i
 :mod:`~jaxcal.recording.types` (:class:`Recording`, the key tables, :class:`RecordingError`),
 :mod:`~jaxcal.recording.validate` (:func:`recording_from_dict`, :func:`validate_recording`),
 :mod:`~jaxcal.recording.plausibility` (:func:`implausible`, :func:`check_plausible`),
-:mod:`~jaxcal.recording.rows` (:func:`take_rows`, :func:`crop`, :func:`sequence_slices`) and
+:mod:`~jaxcal.recording.rows` (:func:`take_rows`, :func:`crop`, :func:`sequence_slices`),
+:mod:`~jaxcal.recording.calibrated` (:func:`with_calibrated`: the sensors replaced by calibrated output) and
 :mod:`~jaxcal.recording.files` (:func:`load_recording`, :func:`save_recording`, :func:`atomic_output`,
 :func:`read_npz_arrays`).
 """
 
 from __future__ import annotations
 
+from jaxcal.recording.calibrated import with_calibrated
 from jaxcal.recording.files import NPZ_READ_ERRORS, atomic_output, load_recording, read_npz_arrays, save_recording
 from jaxcal.recording.plausibility import ACC_NORM_G, GYR_MEDIAN_MAX, GYR_Q99_MAX, check_plausible, implausible
 from jaxcal.recording.rows import PER_SAMPLE_FIELDS, crop, sequence_slices, take_rows
@@ -96,6 +98,7 @@ __all__ = [
     "sequence_slices",
     "PER_SAMPLE_FIELDS",
     "take_rows",
+    "with_calibrated",
     "check_plausible",
     "implausible",
     "atomic_output",
