@@ -132,6 +132,27 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
 MAX_SIM_SEQUENCES = 20_000  # simulate: 101 samples each, so at most ~2 million samples per file
 
 
+DATASHEET_FLAGS = (("acc_lsb_per_g", "--acc-lsb-per-g", "acc", "LSB/g"),
+                   ("gyr_lsb_per_rads", "--gyr-lsb-per-rads", "gyr", "LSB/(rad/s)"))
+"""The datasheet-scale flags (recording key, flag, sensor, unit) of ``export`` and ``noise``."""
+
+
+def _add_datasheet_flags(p: argparse.ArgumentParser, what: str) -> None:
+    """``--acc-lsb-per-g`` / ``--gyr-lsb-per-rads`` (one value or three); ``what`` starts each help."""
+    for key, flag, sensor, unit in DATASHEET_FLAGS:
+        p.add_argument(flag, dest=key, type=float, nargs="+", default=None, metavar="SCALE",
+                       help=f"{what} the datasheet {sensor} scale ({unit}, one value or three)")
+
+
+def _datasheet_values(args: argparse.Namespace) -> dict:
+    """The datasheet flags given, ``key -> value`` (a float, or a list of three); a wrong count is a
+    :class:`UsageError` naming the flags."""
+    got = {key: getattr(args, key) for key, *_ in DATASHEET_FLAGS if getattr(args, key) is not None}
+    if any(len(v) not in (1, 3) for v in got.values()):
+        raise UsageError(f"{' / '.join(f for _, f, *_ in DATASHEET_FLAGS)} take one value or three")
+    return {k: v if len(v) > 1 else v[0] for k, v in got.items()}
+
+
 # ----------------------------------------------------------------------------- output safety
 
 

@@ -9,7 +9,7 @@ import os
 import sys
 from pathlib import Path
 
-from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, register_command
+from jaxcal.cli.core import PROG, Command, UsageError, _add_datasheet_flags, _check_out_file, register_command
 from jaxcal.recording import atomic_output
 
 __all__: list[str] = []
@@ -43,10 +43,7 @@ def _add_export(p: argparse.ArgumentParser) -> None:
                    "sensor_msgs/Imu (m/s^2, rad/s; a model fitted on g: the driver's m/s^2 = g x 9.80665; a raw model: "
                    "the datasheet conversion of --acc-lsb-per-g / --gyr-lsb-per-rads, or the model's own mean scale); "
                    "model: on the model's own input unit, as before")
-    for key, what in (("acc", "LSB/g"), ("gyr", "LSB/(rad/s)")):
-        p.add_argument(f"--{key}-lsb-per-{'g' if key == 'acc' else 'rads'}", type=float, nargs="+", default=None,
-                       metavar="SCALE", help=f"kalibr, openvins with --units ros, a raw (LSB) model: the datasheet "
-                       f"{key} scale ({what}, one value or three) that the driver divides by")
+    _add_datasheet_flags(p, "kalibr, openvins with --units ros, a raw (LSB) model: the driver divides by")
 
 
 def _read_noise(path: str) -> dict:

@@ -19,7 +19,18 @@ import sys
 import time
 from pathlib import Path
 
-from jaxcal.cli.core import PROG, Command, UsageError, _count, _output_dir, _real, register_command
+from jaxcal.cli.core import (
+    DATASHEET_FLAGS,
+    PROG,
+    Command,
+    UsageError,
+    _add_datasheet_flags,
+    _count,
+    _datasheet_values,
+    _output_dir,
+    _real,
+    register_command,
+)
 from jaxcal.recording import load_recording
 
 __all__: list[str] = []
@@ -35,7 +46,8 @@ def _sensor_list(text: str) -> tuple[str, ...]:
 
 def _add_noise(p: argparse.ArgumentParser) -> None:
     p.add_argument("recording", metavar="RECORDING", help="recording with a static stretch (acc/gyr in g, rad/s, or LSB with "
-                   "the datasheet scales acc_lsb_per_g / gyr_lsb_per_rads)")
+                   "the datasheet scales acc_lsb_per_g / gyr_lsb_per_rads in the file or as --acc-lsb-per-g / "
+                   "--gyr-lsb-per-rads)")
     p.add_argument("--out", required=True, metavar="DIR", help="output directory: noise.json, imu.yaml, openvins_noise.yaml, allan.png")
     p.add_argument("--sensors", type=_sensor_list, default=("acc", "gyr"), metavar="LIST",
                    help="sensors to analyse, comma-separated (default acc,gyr; the YAML files need both)")
@@ -47,6 +59,7 @@ def _add_noise(p: argparse.ArgumentParser) -> None:
     p.add_argument("--taus", type=_count(2, 100), default=10, metavar="N", help="cluster times per decade (default 10)")
     p.add_argument("--target-width", type=_real(0.1, 1000.0), default=10.0, metavar="PCT",
                    help="interval half-width (%%) whose record length the report predicts (default 10: +-10 %%)")
+    _add_datasheet_flags(p, "a recording in raw counts (LSB) without it:")
     p.add_argument("--quiet", action="store_true", help="no summary on stderr")
 
 
@@ -57,7 +70,7 @@ def _write_text(path: Path, text: str) -> None:
 def _run_noise(args: argparse.Namespace) -> int:
     from jaxcal import noise as nz
 
-    rec = load_recording(args.recording)
+    rec = _with_datasheet(load_recording(args.recording), _datasheet_values(args))
     t0 = time.perf_counter()
     rep = nz.noise_report(rec, args.sensors, args.start, args.end, args.rostopic, args.taus, target=args.target_width / 100.0)
     with _output_dir(args.out) as d:
@@ -74,6 +87,31 @@ def _run_noise(args: argparse.Namespace) -> int:
                                              " (no imu.yaml: Kalibr needs both acc and gyr)")
         print(f"{PROG}: wrote {written} to {args.out} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return 0
+
+
+def _with_datasheet(rec, values: dict):
+    """The recording with the datasheet scales given as flags (they replace the file's; only a sensor
+    in raw counts takes one), validated again: an implausible scale is refused naming its flag."""
+    import numpy as np
+
+    from jaxcal.recording import RecordingError, validate_recording
+
+    for key, flag, sensor, _ in DATASHEET_FLAGS:
+        y = getattr(rec, sensor)
+        if key in values and (y is None or getattr(rec, f"{sensor}_unit") != "LSB"):
+            state = "absent" if y is None else f"in {getattr(rec, f'{sensor}_unit')}"
+            raise UsageError(f"{flag}: the recording's {sensor} is {state}, not raw counts (LSB): it takes no datasheet scale")
+    if not values:
+        return rec
+    rec = rec.replace(**{k: np.asarray(v, np.float64) for k, v in values.items()})
+    try:
+        validate_recording(rec)
+    except RecordingError as e:
+        msg = str(e)
+        for key, flag, *_ in DATASHEET_FLAGS:
+            msg = msg.replace(f"'{key}'", flag)
+        raise UsageError(f"{msg} (as given by the flag)") from None
+    return rec
 
 
 def _checked_run(args: argparse.Namespace) -> int:
