@@ -154,7 +154,7 @@ def sensor_si(rec: Recording, sensor: str) -> tuple[np.ndarray, str]:
         if rec.acc_lsb_per_g is None:
             raise RecordingError(
                 "accelerometer in raw counts (LSB) without 'acc_lsb_per_g': give the datasheet scale as --acc-lsb-per-g "
-                "(LSB/g) or add it to the recording (or store acc in g with acc_unit = 'g')"
+                "(LSB/g) or add it to the recording (or store acc in g, with the recording key 'acc_unit' = 'g')"
             )
         return y / np.asarray(rec.acc_lsb_per_g, np.float64) * G0, "LSB / acc_lsb_per_g times 9.80665 m/s^2"
     if rec.gyr_unit == "rad/s":
@@ -162,7 +162,7 @@ def sensor_si(rec: Recording, sensor: str) -> tuple[np.ndarray, str]:
     if rec.gyr_lsb_per_rads is None:
         raise RecordingError(
             "gyroscope in raw counts (LSB) without 'gyr_lsb_per_rads': give the datasheet scale as --gyr-lsb-per-rads "
-            "(LSB/(rad/s)) or add it to the recording (or store gyr in rad/s with gyr_unit = 'rad/s')"
+            "(LSB/(rad/s)) or add it to the recording (or store gyr in rad/s, with the recording key 'gyr_unit' = 'rad/s')"
         )
     return y / np.asarray(rec.gyr_lsb_per_rads, np.float64), "LSB / gyr_lsb_per_rads"
 

@@ -149,7 +149,8 @@ def detect_static(
     var_mag = np.linalg.norm(var, axis=1)
     n_init = int(np.searchsorted(t, t[0] + init_duration))
     if n_init < 2 * half + 1:
-        raise ValueError(f"init_duration {init_duration} s holds fewer samples than one window ({window} s)")
+        raise ValueError(f"the initial rest (--init-duration) {init_duration:g} s holds fewer samples than one moving-variance "
+                         f"window (--rest-window) {window:g} s")
     init_var = np.var(np.asarray(acc, np.float64)[:n_init], axis=0)
     threshold = float(k * np.linalg.norm(init_var))
     mask = var_mag < threshold

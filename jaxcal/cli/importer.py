@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 
 from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _real, register_command
@@ -101,9 +102,11 @@ def _run_import(args: argparse.Namespace) -> int:
         rec = formats.read(args.format, args.files, **options)
     except formats.ReaderError as e:
         raise UsageError(str(e)) from None
-    except TypeError as e:  # an option this format does not take
+    except TypeError as e:  # an option this format does not take: name its flag, not the Python argument
+        bad = re.search(r"argument '(\w+)'", str(e))
         given = ", ".join("--" + k.replace("_", "-") for k in options) or "none"
-        raise UsageError(f"format {args.format!r} does not take the options given ({given}): {e}") from None
+        what = f"--{bad.group(1).replace('_', '-')}" if bad and bad.group(1) in options else f"the options given ({given})"
+        raise UsageError(f"format {args.format!r} does not take {what}") from None
     save_recording(rec, args.out)
     print(f"{PROG}: wrote {args.out} ({rec.n} samples, {', '.join(rec.sensors())})", file=sys.stderr)
     return 0

@@ -46,20 +46,20 @@ def read_generic_csv(
     path = Path(path)
     units = dict(units or {})
     if fs is not None:
-        fs = positive_rate(fs, f"{path}: fs")
+        fs = positive_rate(fs, f"{path}: --fs")
     if int(skip_rows) < 0:
-        raise ReaderError(f"{path}: skip_rows must be at least 0, got {skip_rows}")
+        raise ReaderError(f"{path}: --skip-rows must be at least 0, got {skip_rows}")
     header, rows = read_table(path, int(skip_rows))
     rec: dict[str, Any] = {}
     if "t" in columns:
         tu = units.get("t") or unit_from_header(columns["t"])
         if tu is None:
-            raise ReaderError(f"{path}: column {columns['t']!r}: no time unit given and none in the header")
+            raise ReaderError(f"{path}: column {columns['t']!r}: no time unit given (--units t=s, ms, ...) and none in the header")
         rec["t"] = column(path, header, rows, columns["t"]) * unit_factor("t", tu, where=f"{path}: column {columns['t']!r}")
     elif fs is not None:
         rec["t"] = np.arange(len(rows)) / float(fs)
     else:
-        raise ReaderError(f"{path}: no time column mapped ('t') and no fs given")
+        raise ReaderError(f"{path}: no time column mapped ('t') and no --fs given (the sample rate)")
     for q in ("acc", "gyr", "mag"):
         names = [columns.get(f"{q}_{a}") for a in "xyz"]
         if all(n is None for n in names):

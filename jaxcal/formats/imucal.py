@@ -87,7 +87,7 @@ def read_imucal(
         sections: optional JSON file labelling the sections of a continuous session.
     """
     path = Path(path)
-    fs = positive_rate(fs, f"{path}: fs")
+    fs = positive_rate(fs, f"{path}: --fs")
     header, rows = read_table(path)
     idx_name = "n_samples" if "n_samples" in header else "samples" if "samples" in header else None
     if idx_name is None:
@@ -100,8 +100,8 @@ def read_imucal(
         gyr_unit = gyr_unit or "a.u."
     if acc_unit is None or gyr_unit is None:
         raise ReaderError(
-            f"{path}: columns 'acc_x'/'gyr_x' carry no unit; pass acc_unit (e.g. 'm/s^2') and "
-            "gyr_unit (e.g. 'deg/s') for this imucal session"
+            f"{path}: columns 'acc_x'/'gyr_x' carry no unit; pass --acc-unit (e.g. 'm/s^2') and "
+            "--gyr-unit (e.g. 'deg/s') for this imucal session"
         )
     acc, au = convert3(path, header, rows, ("acc_x", "acc_y", "acc_z"), "acc", acc_unit)
     gyr, gu = convert3(path, header, rows, ("gyr_x", "gyr_y", "gyr_z"), "gyr", gyr_unit)
@@ -315,7 +315,7 @@ def from_imucal(doc: Any, drop_g_sensitivity: bool = False) -> Imported:
 
 def _read(files: list[Path], **options: Any) -> Recording:
     if "fs" not in options:
-        raise ReaderError(f"{files[0]}: imucal CSVs hold a sample index, not time: pass fs")
+        raise ReaderError(f"{files[0]}: imucal CSVs hold a sample index, not time: pass --fs (the sample rate, Hz)")
     return read_imucal(files[0], sections=files[1] if len(files) > 1 else None, **options)
 
 

@@ -57,7 +57,7 @@ def _datasheet_value(datasheet: Mapping[str, Any], key: str) -> np.ndarray | Non
         return None
     a = np.broadcast_to(np.asarray(v, np.float64), (3,)) if np.ndim(v) in (0, 1) else None
     if a is None or a.shape != (3,) or not np.all(np.isfinite(a)) or np.any(a == 0):
-        raise ModelError(f"{key} must be one non-zero number or three, got {v!r}")
+        raise ModelError(f"--{key.replace('_', '-')} must be one non-zero number or three, got {v!r}")
     return np.array(a)
 
 
@@ -84,7 +84,8 @@ def ros_input(model: CalibrationModel, cals: Mapping[str, LinearCal],
         v = _datasheet_value(datasheet, key)
         if u != "LSB":
             if v is not None:
-                raise ModelError(f"{key} is a raw model's datasheet scale, but the {s} model was fitted on {u}")
+                raise ModelError(f"--{key.replace('_', '-')} is a raw model's datasheet scale, but the {s} model was "
+                                 f"fitted on {u}")
             per[s] = np.full(3, _PER_JAXCAL_UNIT[s])
             how[s] = f"{ros} = {u} x {float(per[s][0])!r} (the model was fitted on {u})"
         elif v is not None:

@@ -291,7 +291,7 @@ def turns_from_times(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, times: Any
     t = np.asarray(t, np.float64)
     tt = np.asarray(times, np.float64).reshape(-1, 2)
     if np.any(tt[:, 1] <= tt[:, 0]) or tt.min() < t[0] or tt.max() > t[-1]:
-        raise ValueError(f"turns: each needs start < end inside the recording [{t[0]:.3f}, {t[-1]:.3f}] s, got {tt.tolist()}")
+        raise ValueError(f"--turns: each needs start < end inside the recording [{t[0]:.3f}, {t[-1]:.3f}] s, got {tt.tolist()}")
     spans = np.stack([np.searchsorted(t, tt[:, 0]), np.minimum(np.searchsorted(t, tt[:, 1]), len(t) - 1)], 1)
     n = max(1, int(round(rest / float(np.median(np.diff(t))))))
     return prepare_turns(t, acc, gyr, spans, rests_around(spans, n, 5, len(t)), gyr_limit=gyr_limit)
