@@ -78,3 +78,21 @@ def test_refusal_names_the_flag_not_the_python_argument(name, tmp_path, capsys):
     assert len(lines) == 1, err
     assert flag in lines[0], lines[0]
     assert not PYTHON_NAMES.search(lines[0]), lines[0]
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins", "json"])
+def test_a_diagnosed_model_is_refused_naming_the_format_asked_and_what_it_would_lose(fmt):
+    """The refusal names the format asked for (not 'json and c'), the effects the model carries and, for
+    the ROS-fed formats, why their IMU file cannot hold a time offset against a reference."""
+    from jaxcal import formats
+    from jaxcal.methods import ModelError
+
+    model = methods.CalibrationModel("diagnosed", ("acc", "gyr"), {}, {"effects": {"acc": ["lever_arm", "time_offset"],
+                                                                                   "gyr": ["time_offset"]}})
+    with pytest.raises(ModelError) as e:
+        formats.export(fmt, model)
+    msg = str(e.value)
+    assert f"the {fmt} export holds" in msg and "json and c" not in msg
+    assert "acc: lever_arm, time_offset; gyr: time_offset" in msg
+    assert ("timeshift_cam_imu" in msg) == (fmt in ("kalibr", "openvins"))
+    assert "\n" not in msg

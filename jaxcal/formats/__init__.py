@@ -41,6 +41,7 @@ from jaxcal.formats import (
     imucal,
     jaxcal_json,
     kalibr,
+    linear_io,
     mpu6050,
     openvins,
     rosbag,
@@ -60,6 +61,7 @@ __all__ = [
     "Imported",
     "ReaderError",
     "export",
+    "not_linear_message",
     "exporters",
     "get",
     "import_model",
@@ -166,7 +168,35 @@ def export(format: str, model: CalibrationModel, options: ExportOptions | None =
     fmt = REGISTRY.get(format)
     if fmt is None or fmt.export is None:
         raise ModelError(f"unknown export format {format!r} ({', '.join(exporters())})")
+    if not linear_io.is_linear(model):
+        raise ModelError(not_linear_message(model, format))
     return fmt.export(model, options or ExportOptions())
+
+
+# What the IMU files of the ROS-fed formats cannot hold of a diagnosed model (Kalibr's multi-IMU keys
+# are relative to imu0; the camera-IMU shift is the camchain's, OpenVINS's kalibr_imucam_chain.yaml).
+_ROS_FILE_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 0 for one IMU), and the "
+                    "camera-IMU time shift is timeshift_cam_imu in the camchain, against a camera, not the reference "
+                    "diagnose used")
+
+
+def not_linear_message(model: CalibrationModel, format: str) -> str:
+    """Why ``model`` cannot be exported as ``format`` (one line): the format it was asked for, the
+    methods whose models it holds, and for a ``diagnosed`` model its effects that no export carries.
+
+    Args:
+        model: a model whose method is not linear.
+        format: the export format asked for.
+    """
+    msg = (f"model of method '{model.method}' is not linear: the {format} export holds one affine calibration "
+           f"{linear_io.EQUATION} per sensor, which only the methods {', '.join(linear_io.linear_methods())} fit")
+    effects = model.meta.get("effects") if model.method == "diagnosed" else None
+    if isinstance(effects, dict):
+        named = "; ".join(f"{s}: {', '.join(map(str, v))}" for s, v in effects.items() if v) or "none"
+        msg += (f"; the effects it carries ({named}) would be lost, and "
+                + (_ROS_FILE_LIMITS if format in ("kalibr", "openvins") else f"the {format} file has no place for them")
+                + "; `jaxcal calibrate --method multipos`, `online` or `linear` fits an exportable model")
+    return msg
 
 
 def _importer(fmt: str) -> Format:

@@ -86,7 +86,7 @@ def linear_cals(model: CalibrationModel) -> dict[str, LinearCal]:
     """
     if not is_linear(model):
         raise ModelError(
-            f"model of method '{model.method}' is not linear: the json and c exports hold one affine "
+            f"model of method '{model.method}' is not linear: jaxcal's exports hold one affine "
             f"calibration {EQUATION} per sensor, which only the methods {', '.join(linear_methods())} fit"
         )
     out = {}
