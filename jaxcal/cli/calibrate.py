@@ -17,7 +17,7 @@ from jaxcal.recording import atomic_output, load_recording
 # The methods (jax, flax, optimistix) are imported inside the functions that use them, so that
 # registering these commands costs nothing (`jaxcal --help`, other commands).
 
-__all__ = ["OPTION_FLAGS", "Flag", "applied_output"]
+__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "rest_bias"]
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -226,7 +226,7 @@ def _run_apply(args: argparse.Namespace) -> int:
     model, rec, out = applied_output(args.model, args.recording, args.allow_extrapolation)
     log = _progress(args)
     if args.rest_bias is not None:
-        out = _rest_bias(out, rec, args.rest_bias, log)
+        out = rest_bias(out, rec, args.rest_bias, log)
     elif "gyr_cal" in out and log:
         log(f"note: {STARTUP_BIAS_NOTE}; --rest-bias SEC takes this recording's from its first SEC seconds at rest")
     cal = with_calibrated(rec, out).replace(extra={**rec.extra, **out})
@@ -249,7 +249,7 @@ def _run_apply(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rest_bias(out: dict[str, np.ndarray], rec: Any, seconds: float, log: Any) -> dict[str, np.ndarray]:
+def rest_bias(out: dict[str, np.ndarray], rec: Any, seconds: float, log: Any) -> dict[str, np.ndarray]:
     """``out`` with the gyro's start-up bias of this recording removed (:func:`jaxcal.static.initial_rest_bias`)."""
     from jaxcal.static import initial_rest_bias
 
