@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli as run
 
 from jaxcal import methods
 from jaxcal.cli import main
@@ -18,11 +19,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MPU = ROOT / "data" / "tomisuarez_mpu6050"
 PHYS = {"acc": "g", "gyr": "rad/s"}
 
-
-def run(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
 def identity_model(path: Path) -> None:

@@ -8,17 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli as run
 
-from jaxcal.cli import main
 from jaxcal.recording import crop, load_recording, save_recording
 
 MPU = Path(__file__).resolve().parents[1] / "data" / "tomisuarez_mpu6050"
 
-
-def run(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
 @pytest.fixture(scope="module")

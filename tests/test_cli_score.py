@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import run_cli as run
 
 from jaxcal import methods
 from jaxcal.cli import main
@@ -22,11 +23,6 @@ ROOT = Path(__file__).resolve().parents[1]
 MPU = ROOT / "data" / "tomisuarez_mpu6050"
 BROAD07 = ROOT / "data" / "broad_07_undisturbed_fast_rotation_B" / "07_undisturbed_fast_rotation_B.npz"
 
-
-def run(capsys, *argv) -> tuple[int, str, str]:
-    code = main([str(a) for a in argv])
-    cap = capsys.readouterr()
-    return code, cap.out, cap.err
 
 
 def test_score_of_a_refitted_linear_model_on_its_held_out_rows_is_the_methods_held_out_figure(tmp_path, capsys):
