@@ -129,3 +129,18 @@ def test_rest_bias_removes_this_power_ups_gyro_bias_and_refuses_a_motion(mpu_mod
     code, _, err = run(capsys, "apply", mpu_model, MPU / "rot90x.npz", "--out", tmp_path / "moved.npz", "--rest-bias", "60")
     assert code == 2 and "--rest-bias 60" in err and "not at rest" in err
     assert not (tmp_path / "moved.npz").exists()
+
+
+def test_apply_names_what_the_model_does_not_carry(lab, tmp_path, capsys):
+    """A model whose fit found something it does not apply (a diagnosed model's ``meta["not_carried"]``)
+    says so in one note line; -q silences it."""
+    m = load_model(lab / "lin.npz")
+    why = "tied to the fit recording's clock"
+    meta = {**m.meta, "not_carried": [{"sensor": "gyr", "name": "bias_drift", "why": why}]}
+    save_model(methods.CalibrationModel(m.method, m.sensors, m.state, meta), tmp_path / "m.npz")
+    code, _, err = run(capsys, "apply", tmp_path / "m.npz", lab / "test_gyr.npz", "--out", tmp_path / "o.npz")
+    assert code == 0, err
+    notes = [x for x in err.splitlines() if "does not carry" in x]
+    assert len(notes) == 1 and f"gyr bias_drift ({why})" in notes[0]
+    code, _, err = run(capsys, "apply", tmp_path / "m.npz", lab / "test_gyr.npz", "--out", tmp_path / "q.npz", "-q")
+    assert code == 0 and err == ""

@@ -17,7 +17,7 @@ from jaxcal.recording import atomic_output, load_recording
 # The methods (jax, flax, optimistix) are imported inside the functions that use them, so that
 # registering these commands costs nothing (`jaxcal --help`, other commands).
 
-__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "rest_bias"]
+__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "not_carried_text", "rest_bias"]
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -229,6 +229,9 @@ def _run_apply(args: argparse.Namespace) -> int:
         out = rest_bias(out, rec, args.rest_bias, log)
     elif "gyr_cal" in out and log:
         log(f"note: {STARTUP_BIAS_NOTE}; --rest-bias SEC takes this recording's from its first SEC seconds at rest")
+    lost = not_carried_text(model.meta)
+    if lost and log:
+        log(f"note: {args.model} does not carry what its fit found of: {lost}")
     cal = with_calibrated(rec, out).replace(extra={**rec.extra, **out})
     try:
         validate_recording(cal, args.out)
@@ -247,6 +250,16 @@ def _run_apply(args: argparse.Namespace) -> int:
     if log:
         log(f"wrote {args.out}: {', '.join(out)} for {rec.n} samples" + (" (a recording every command reads)" if cal else ""))
     return 0
+
+
+def not_carried_text(meta: Any) -> str:
+    """What a model's fit found but the model does not apply (``meta["not_carried"]``: a diagnosed
+    model's bias drift, saturation, ...), as ``"acc bias_drift (why); ..."``; empty when nothing."""
+    items = meta.get("not_carried") if isinstance(meta, Mapping) else None
+    if not isinstance(items, list):
+        return ""
+    return "; ".join(f"{e.get('sensor', '')} {e.get('name', '')} ({e.get('why', '')})".strip()
+                     for e in items if isinstance(e, Mapping))
 
 
 def rest_bias(out: dict[str, np.ndarray], rec: Any, seconds: float, log: Any) -> dict[str, np.ndarray]:
