@@ -44,6 +44,7 @@ from jaxcal.formats import (
     linear_io,
     mpu6050,
     openvins,
+    ros_input,
     rosbag,
     tumvi,
     xio,
@@ -173,13 +174,6 @@ def export(format: str, model: CalibrationModel, options: ExportOptions | None =
     return fmt.export(model, options or ExportOptions())
 
 
-# What the IMU files of the ROS-fed formats cannot hold of a diagnosed model (Kalibr's multi-IMU keys
-# are relative to imu0; the camera-IMU shift is the camchain's, OpenVINS's kalibr_imucam_chain.yaml).
-_ROS_FILE_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 0 for one IMU), and the "
-                    "camera-IMU time shift is timeshift_cam_imu in the camchain, against a camera, not the reference "
-                    "diagnose used")
-
-
 def not_linear_message(model: CalibrationModel, format: str) -> str:
     """Why ``model`` cannot be exported as ``format`` (one line): the format it was asked for, the
     methods whose models it holds, and for a ``diagnosed`` model its effects that no export carries.
@@ -194,7 +188,7 @@ def not_linear_message(model: CalibrationModel, format: str) -> str:
     if isinstance(effects, dict):
         named = "; ".join(f"{s}: {', '.join(map(str, v))}" for s, v in effects.items() if v) or "none"
         msg += (f"; the effects it carries ({named}) would be lost, and "
-                + (_ROS_FILE_LIMITS if format in ("kalibr", "openvins") else f"the {format} file has no place for them")
+                + (ros_input.IMU0_LIMITS if format in ("kalibr", "openvins") else f"the {format} file has no place for them")
                 + "; `jaxcal calibrate --method multipos`, `online` or `linear` fits an exportable model")
     return msg
 

@@ -22,7 +22,7 @@ from jaxcal.formats.linear_io import IMU_SENSORS, model_units
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.sensor import LinearCal
 
-__all__ = ["DATASHEET_KEYS", "ROS_UNIT", "UNITS", "RosInput", "not_carried", "ros_cals", "ros_input"]
+__all__ = ["DATASHEET_KEYS", "IMU0_LIMITS", "ROS_UNIT", "UNITS", "RosInput", "not_carried", "ros_cals", "ros_input"]
 
 ROS_UNIT = {"acc": "m/s^2", "gyr": "rad/s"}
 """The units of ``sensor_msgs/Imu`` (``linear_acceleration``, ``angular_velocity``)."""
@@ -111,6 +111,12 @@ def ros_cals(phys: Mapping[str, LinearCal], ros: RosInput) -> dict[str, LinearCa
             for s in IMU_SENSORS}
 
 
+IMU0_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 0 for one IMU), and the camera-IMU "
+               "time shift is timeshift_cam_imu in the camchain, against a camera: a time offset or lever arm against "
+               "a reference, as diagnose and align find, has no key in this file")
+"""Why a Kalibr / OpenVINS IMU file cannot hold a time offset or transform against a reference."""
+
+
 def not_carried(fmt: str, units: str) -> list[str]:
     """What a linear model's ``fmt`` file (``kalibr``, ``openvins``) does not give the filter, one phrase each.
 
@@ -124,8 +130,10 @@ def not_carried(fmt: str, units: str) -> list[str]:
                 "jaxcal_b_a / jaxcal_b_g there)")
     else:
         bias = "the constant bias (Kalibr has no bias key: it estimates the bias itself; jaxcal_b_a / jaxcal_b_g are not read)"
-    out = [bias, "a standard deviation of the bias (a linear model's fit records none)",
-           "time_offset and T_i_b (a linear model has no time offset or IMU-to-body transform: identity and 0 here)"]
+    prior = ("OpenVINS has no key for it either: it inflates its own initial covariance, init_dyn_inflation_bg / _ba"
+             if fmt == "openvins" else "Kalibr has no key for a bias prior")
+    out = [bias, f"a standard deviation of the bias (a linear model's fit records none; {prior})",
+           f"time_offset and T_i_b ({IMU0_LIMITS})"]
     if units == "model":
         out.append("the ROS units (written in the model's input unit: a ROS driver's m/s^2 and rad/s need --units ros)")
     return out
