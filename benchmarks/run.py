@@ -168,8 +168,8 @@ def scan_vs_loop(reps: int) -> dict:
 
     # loop: the same initial parameters (init_epochs = 0: the scaled initial weights), one jitted step per sequence.
     k_a, k_g = jax.random.split(hp.key)
-    acc_p0 = ot._init_params(k_a, hp.acc_init_scale)
-    gyr_p0 = ot._init_params(k_g, hp.gyr_init_scale)
+    acc_p0 = ot.init_params(k_a, hp.acc_init_scale)
+    gyr_p0 = ot.init_params(k_g, hp.gyr_init_scale)
     carry0 = (acc_p0, gyr_p0, optax.adam(hp.acc_lr).init(acc_p0), optax.adam(hp.gyr_lr).init(gyr_p0))
     step = _step_fn(d.acc_spec, d.gyr_spec)
     seqs = [(acc[i], gyr[i]) for i in range(m)]  # sliced beforehand: the loop times the steps, not the slicing
@@ -365,8 +365,8 @@ def jax_vs_torch(reps: int) -> dict:
 
     # torch: the same initial parameters (init_epochs = 0: the scaled flax initial weights), data and bounds.
     k_a, k_g = jax.random.split(hp.key)
-    p_a0 = ot._init_params(k_a, hp.acc_init_scale)
-    p_g0 = ot._init_params(k_g, hp.gyr_init_scale)
+    p_a0 = ot.init_params(k_a, hp.acc_init_scale)
+    p_g0 = ot.init_params(k_g, hp.gyr_init_scale)
     tt = lambda x: torch.from_numpy(np.array(x, dtype=np.float32))  # noqa: E731
     a_t, g_t = tt(acc), tt(gyr)
     ab, gb = tuple(map(tt, ot.acc_bounds(d.acc_spec))), tuple(map(tt, ot.gyr_bounds(d.gyr_spec)))

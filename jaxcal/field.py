@@ -48,7 +48,7 @@ from jaxcal import multipos as mp
 from jaxcal.online import OnlineHP, SequenceBatch, make_filter, online_scan, to_linear_cal
 from jaxcal.sensor import Diag, LinearCal
 
-__all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "carried_sigma", "compose", "field_batch", "fit_field", "fold_fits", "rest_init"]
+__all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "carried_sigma", "compose", "field_batch", "fit_field", "fold_fits", "rest_init", "sequence_weights"]
 
 RESIDUALS = ("rests", "all")
 
@@ -117,7 +117,7 @@ class FieldBatch(NamedTuple):
 def field_batch(acc: np.ndarray, gyr: np.ndarray, intervals: np.ndarray, usable: np.ndarray) -> FieldBatch:
     """Every motion between consecutive rests as a sequence (:class:`FieldBatch`). An unusable
     motion (e.g. a saturated gyro) keeps only the rest before it, so that the rest still gives its
-    ``|f| = 1 g`` row (one row: its direction is the sequence's free start, :func:`_weights`).
+    ``|f| = 1 g`` row (one row: its direction is the sequence's free start, :func:`sequence_weights`).
 
     Args:
         acc, gyr: (L, 3) raw outputs.
@@ -169,8 +169,8 @@ def carried_sigma(init: FieldInit, data: mp.MultiposData, motion_w: np.ndarray) 
     return float(np.sqrt(np.mean(ang[ok] ** 2) / 2.0)) if ok.any() else 0.0
 
 
-def _weights(batch: FieldBatch, seq_w: np.ndarray, residuals: str, sigma: float,
-             sigma_dir: float) -> tuple[np.ndarray, np.ndarray]:
+def sequence_weights(batch: FieldBatch, seq_w: np.ndarray, residuals: str, sigma: float,
+                     sigma_dir: float) -> tuple[np.ndarray, np.ndarray]:
     """(J, N) residual weights along and across the predicted direction (:class:`~jaxcal.online.SequenceBatch`).
 
     A rest's ``|f|`` (along) counts once, with its sample count ``n``: at the end of the usable
@@ -211,7 +211,7 @@ def fit_field(batch: FieldBatch, init: FieldInit, dt: float, hp: OnlineHP, kind:
         dt: sample period (s).
         hp: :class:`~jaxcal.online.OnlineHP`; ``sigma_acc`` is one sample's noise in g.
         kind: ``"affine"`` or ``"diag"`` (static).
-        residuals: ``"rests"`` or ``"all"`` (:func:`_weights`).
+        residuals: ``"rests"`` or ``"all"`` (:func:`sequence_weights`).
         seq_w: (J,) 0/1 per sequence (``None``: all); a 0 skips the sequence.
         sigma_dir: per-component std (rad) of a carried gravity direction (:func:`carried_sigma`);
             0: the accelerometer's noise alone, the simulation's assumption.
@@ -235,7 +235,7 @@ def _inputs(batch: FieldBatch, init: FieldInit, hp: OnlineHP, residuals: str, se
     ia, ig, G = init
     ua = (batch.acc - np.asarray(ia.b)) @ np.asarray(ia.A).T
     ug = (batch.gyr - np.asarray(ig.b)) @ np.asarray(ig.A).T - ua @ np.asarray(G).T
-    w, wt = _weights(batch, seq_w, residuals, float(hp.sigma_acc), float(sigma_dir))
+    w, wt = sequence_weights(batch, seq_w, residuals, float(hp.sigma_acc), float(sigma_dir))
     return ua, ug, w, wt
 
 

@@ -76,6 +76,7 @@ __all__ = [
     "fit_online_thesis_recording",
     "gyr_bounds",
     "gyro_loss",
+    "init_params",
     "initial_training",
     "run_dataset",
     "run_from_initial",
@@ -295,7 +296,7 @@ def _adam_steps(loss_fn, params, opt_state, opt, n_steps):
     return params, opt_state, loss_fn(params)
 
 
-def _init_params(key: jax.Array, scale) -> Params:
+def init_params(key: jax.Array, scale) -> Params:
     """Flax LeCun-normal initial weights of the Fig. 4.5 network, multiplied by ``scale``."""
     return jax.tree.map(lambda p: scale * p, init_mlp(key, ONLINE_MLP))
 
@@ -331,7 +332,7 @@ def _initial_training(
 
     def init_train(key, raw, cal, spec, scale):
         target = spec_convert(raw, spec)
-        p0 = _init_params(key, scale)
+        p0 = init_params(key, scale)
         loss_fn = lambda p: mse(target, cal(p, raw))  # noqa: E731
         p, _, loss = _adam_steps(loss_fn, p0, init_opt.init(p0), init_opt, hp.init_epochs)
         return p, loss

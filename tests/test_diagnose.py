@@ -100,14 +100,14 @@ def test_local_level_filter_matches_naive_kalman(lam):
 
 def test_refit_whitening_is_the_selection_whitening(x64):
     # the joint refit (JAX scan) and the tests (numpy) must whiten with the same filter
-    from jaxcal.diagnose.refit import _filters, _whiten
+    from jaxcal.diagnose.refit import whiten_residual, whitening_filters
     from jaxcal.diagnose.whiten import ARModel, theta_of
 
     r = np.random.default_rng(0).standard_normal((3000, 3))
     ars = [ARModel(np.array([0.3, -0.1]), 1.3, 2, theta_of(1e-4), 300, 1e-4), ARModel(np.zeros(0), 0.7, 0, 1.0, 0, 0.0),
            ARModel(np.array([0.5]), 2.0, 1, theta_of(1e-6), 300, 1e-6)]
-    taps, sig, ll = _filters(ars, len(r))
-    a = np.asarray(_whiten(jnp.asarray(r), jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(x) for x in ll)))
+    taps, sig, ll = whitening_filters(ars, len(r))
+    a = np.asarray(whiten_residual(jnp.asarray(r), jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(x) for x in ll)))
     b = np.stack([apply_filter(r[:, i], ars[i]) for i in range(3)], 1)
     np.testing.assert_allclose(a, b, atol=1e-10)
 

@@ -74,12 +74,12 @@ def _toy_batch(usable):
 @settings(max_examples=60, deadline=None)
 @given(st.lists(st.booleans(), min_size=2, max_size=9), st.integers(0, 2**31 - 1))
 def test_every_streamed_rest_counts_its_norm_exactly_once(usable, seed):
-    """Invariant of :func:`jaxcal.field._weights`: over the streamed sequences, each rest's
+    """Invariant of :func:`jaxcal.field.sequence_weights`: over the streamed sequences, each rest's
     ``|f|`` row (weight along the direction) is its sample count, once, whatever sequences a fold
     skips; an unusable motion carries no direction."""
     batch, iv = _toy_batch(usable)
     on = np.random.default_rng(seed).random(len(usable)) < 0.7
-    w, wt = field._weights(batch, on.astype(float), "rests", 1e-3, 1e-2)
+    w, wt = field.sequence_weights(batch, on.astype(float), "rests", 1e-3, 1e-2)
     n = iv[:, 1] - iv[:, 0]
     counted = np.zeros(len(iv))
     for j in range(len(usable)):

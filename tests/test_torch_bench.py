@@ -33,7 +33,7 @@ def data():
 
 def test_mlp_from_flax_matches_flax_and_round_trips():
     """Same weights give the same outputs; flax -> torch -> flax is exact."""
-    params = ot._init_params(jax.random.PRNGKey(0), 1.0)
+    params = ot.init_params(jax.random.PRNGKey(0), 1.0)
     u = jax.random.uniform(jax.random.PRNGKey(1), (64, 3), minval=-1.0, maxval=1.0)
     net = tot.mlp_from_flax(params)
     with torch.no_grad():
@@ -68,8 +68,8 @@ def test_exp_so3_gradient_finite_at_zero():
 
 def test_losses_match_jaxcal(data):
     """Eq. 4.10 and 4.13 on calibrated values of one sequence."""
-    a_c = ot.calibrate_acc(ot._init_params(jax.random.PRNGKey(3), 1.0), data.train.acc[0], data.acc_spec)
-    phi_c = ot.calibrate_gyr(ot._init_params(jax.random.PRNGKey(4), 1.0), data.train.gyr[0], data.gyr_spec)
+    a_c = ot.calibrate_acc(ot.init_params(jax.random.PRNGKey(3), 1.0), data.train.acc[0], data.acc_spec)
+    phi_c = ot.calibrate_gyr(ot.init_params(jax.random.PRNGKey(4), 1.0), data.train.gyr[0], data.gyr_spec)
     dt = float(data.dt)
     g_j = float(ot.gyro_loss(phi_c, a_c, dt))
     g_t = float(tot.gyro_loss(_t(phi_c), _t(a_c), dt))
@@ -89,15 +89,15 @@ def test_adaptive_loop_matches_run_sequences(data, how):
     acc, gyr = data.train.acc, data.train.gyr
     res = ot.run_sequences(acc, gyr, dt, data.acc_spec, data.gyr_spec, hp, init_every=ot.INIT_EVERY)
     k_a, k_g = jax.random.split(hp.key)
-    net_a = tot.mlp_from_flax(ot._init_params(k_a, hp.acc_init_scale))
-    net_g = tot.mlp_from_flax(ot._init_params(k_g, hp.gyr_init_scale))
+    net_a = tot.mlp_from_flax(ot.init_params(k_a, hp.acc_init_scale))
+    net_g = tot.mlp_from_flax(ot.init_params(k_g, hp.gyr_init_scale))
     cfg = tot.TorchLoopConfig(gyr_lr=float(hp.gyr_lr), gyr_steps=3, acc_lr=float(hp.acc_lr), acc_steps=3,
                               w=float(hp.w), dt=float(dt), compose=how)
     out = tot.adaptive_loop(_t(acc), _t(gyr), tuple(map(_t, ot.acc_bounds(data.acc_spec))),
                             tuple(map(_t, ot.gyr_bounds(data.gyr_spec))), net_a, net_g, cfg)
     p_t = (tot.flax_from_mlp(net_a), tot.flax_from_mlp(net_g))
     p_j = (res.acc_params, res.gyr_params)
-    start = jax.tree.leaves((ot._init_params(k_a, hp.acc_init_scale), ot._init_params(k_g, hp.gyr_init_scale)))
+    start = jax.tree.leaves((ot.init_params(k_a, hp.acc_init_scale), ot.init_params(k_g, hp.gyr_init_scale)))
     moved = max(float(np.max(np.abs(np.asarray(x) - np.asarray(y)))) for x, y in zip(jax.tree.leaves(p_j), start, strict=True))
     assert moved > 1e-3  # the loop did train (measured 3.4e-3): agreement below is not just "nothing moved"
     for x, y in zip(jax.tree.leaves(p_j), jax.tree.leaves(p_t), strict=True):

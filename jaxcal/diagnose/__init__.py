@@ -62,7 +62,8 @@ def diagnose_recording(
         with_figures: build figures (default: only when ``out_dir`` is given); returned under the
             report's ``"_figures"`` key when built without ``out_dir``.
         force: per sensor, effects estimated whatever the tests say (``{"acc": ("lever_arm",
-            "time_offset")}``; :func:`jaxcal.diagnose.align.align_recording` uses it).
+            "time_offset")}``; :func:`jaxcal.diagnose.align.align_recording` uses it, and
+            ``experiments/field_diagnose.py`` to measure the coverage of concealed effects).
         keep_fit: also return the diagnosis itself, ``(preps, results)`` of
             :func:`diagnose_banded`, under the report's ``"_fit"`` key (``jaxcal diagnose
             --model-out`` turns it into a ``diagnosed`` model with
@@ -83,9 +84,7 @@ def diagnose_recording(
     t0 = time.perf_counter()
     build_figs = (out_dir is not None) if with_figures is None else with_figures
     if reference == "none" or (reference == "auto" and not has_reference(rec)):
-        if force:
-            raise ValueError("force is a reference-mode option (jaxcal align)")
-        prep, results, ref = diagnose_noref(rec, baseline, config, noref)
+        prep, results, ref = diagnose_noref(rec, baseline, config, noref, force)
         rep = noref_report(prep, results, ref, baseline, time.perf_counter() - t0, noref)
         figs = figures(prep, results) if build_figs else None
         preps = {s: prep for s in results}

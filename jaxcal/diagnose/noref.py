@@ -37,6 +37,7 @@ correlates with the rotation it biases what the motions estimate (time offset, l
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -427,10 +428,16 @@ def carry_check(ref: SelfReference, t: np.ndarray) -> dict:
     return {"n": len(ang), "median_deg": float(np.median(ang)), "max_deg": float(np.max(ang))}
 
 
+MOTION_POOLED = ("time_offset", "lever_arm")
+"""The accelerometer's effects estimated from the motions, whose intervals are pooled over bands."""
+
+
 def _rest_config(sensor: str, cfg: SelectConfig) -> SelectConfig:
     """The gyroscope's rows are separate rests: an AR noise model without the random walk, which
-    would take each rest's level (its bias + G f) for noise."""
-    return cfg if sensor == "acc" else cfg._replace(random_walk=False)
+    would take each rest's level (its bias + G f) for noise. The accelerometer's motion effects
+    (time offset, lever arm) count the disagreement of their frequency bands in their intervals
+    (:data:`MOTION_POOLED`): translational acceleration that the vocabulary lacks moves them."""
+    return cfg._replace(band_pool=MOTION_POOLED) if sensor == "acc" else cfg._replace(random_walk=False)
 
 
 def _rest_warning(sensor: str, warning: str) -> bool:
@@ -445,7 +452,8 @@ to the gyroscope's clock, so no clock offset is shared."""
 
 
 def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = SelectConfig(),
-                   noref: NorefConfig = NorefConfig()) -> tuple[Prepared, dict[str, SensorResult], SelfReference]:
+                   noref: NorefConfig = NorefConfig(), force: Mapping[str, tuple[str, ...]] | None = None,
+                   ) -> tuple[Prepared, dict[str, SensorResult], SelfReference]:
     """Prepare a recording against itself (:func:`prepare_noref`) and run the reference mode's
     stages on it (:func:`jaxcal.diagnose.core.diagnose_sensors` with :data:`SELF`, one Bonferroni
     family over both sensors; the gyroscope's noise model without a random walk). Returns
@@ -456,10 +464,12 @@ def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = Sel
         kind: baseline on top of the starting calibration, ``"affine"`` (default) or ``"diag"``.
         cfg: test level and search settings.
         noref: settings of the self reference.
+        force: ``{sensor: effect names}`` estimated whatever the tests say (reported as estimates
+            on request, not as discoveries); None: none.
     """
     ref = self_reference(rec, noref)
     prep = prepare_noref(rec, noref, ref)
-    res = diagnose_sensors({s: prep for s in prep.sensors}, kind, cfg, count_tests(kind, prep), mode=SELF)
+    res = diagnose_sensors({s: prep for s in prep.sensors}, kind, cfg, count_tests(kind, prep), force, mode=SELF)
     return prep, res, ref
 
 

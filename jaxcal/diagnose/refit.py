@@ -45,6 +45,8 @@ __all__ = [
     "RefitResult",
     "block_sandwich_cov",
     "refit",
+    "whitening_filters",
+    "whiten_residual",
 ]
 
 MAX_TAPS = 65
@@ -69,7 +71,7 @@ class RefitResult(NamedTuple):
     n_downweighted: int = 0  # whitened rows given a Huber weight below 1
 
 
-def _filters(ars: list[ARModel], n: int) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+def whitening_filters(ars: list[ARModel], n: int) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """AR taps (3, MAX_TAPS), innovation sd (3,) and the random-walk stage as per-sample gains
     ``K`` and inverse innovation sd factors ``sfi`` (both (n, 3); ``K = 0, sfi = 1``: identity)."""
     taps = np.zeros((3, MAX_TAPS))
@@ -85,8 +87,8 @@ def _filters(ars: list[ARModel], n: int) -> tuple[np.ndarray, np.ndarray, tuple[
     return taps, sig, (K, sfi)
 
 
-def _whiten(r, taps, sig, ll):
-    """Random-walk stage (exact diffuse local-level innovations, scan; identity where ``K = 0``)
+def whiten_residual(r, taps, sig, ll):
+    """Whitened residual of ``r`` (N, 3) with the filters of :func:`whitening_filters`: random-walk stage (exact diffuse local-level innovations, scan; identity where ``K = 0``)
     then the AR FIR, per axis (the same filter as :func:`jaxcal.diagnose.whiten.apply_filter`)."""
     n = r.shape[0]
     K, sfi = ll
@@ -111,7 +113,7 @@ def _refit(kind, sensor, phi0, mask, inp, y, fill_idx, row_w, taps, sig, th, max
     def white(phi):
         beta, theta = unpack(phi)
         r = (y - E.model_output(kind, sensor, beta, theta, inp))[fill_idx]  # hold values over invalid rows
-        return _whiten(r, taps, sig, th) * row_w
+        return whiten_residual(r, taps, sig, th) * row_w
 
     def resid(phi, _):
         pen = 1e3 * (1.0 - mask) * phi[nb:]
@@ -177,7 +179,7 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
         huber: outlier threshold in robust sd (mocap glitches, shocks); None: plain least squares.
     """
     mask = E.effect_mask(sensor, names)
-    taps, sig, th = _filters(ars, len(y))
+    taps, sig, th = whitening_filters(ars, len(y))
     row_w = np.stack([gap_ok(rows, ar.memory) for ar in ars], 1).astype(np.float64)
     nb = E.N_BASE[kind]
     with jax.enable_x64(True):

@@ -111,6 +111,7 @@ def build_report(prep: Prepared, results: dict[str, SensorResult], kind: str, ru
                 "stat": d["stat"], "dof": d["dof"], "log10_p": d["log10_p"], "mds": r.mds.get(name),
                 "note": d["reason"], "plausible_max_abs": E.PLAUSIBLE_RANGE.get((name, s)),
                 "forced": d["reason"].startswith(FORCED),
+                **({"band_check": r.bands[name]} if r.bands and name in r.bands else {}),
             })
         if r.saturation is not None and r.saturation["selected"]:
             rep["effects"].append({

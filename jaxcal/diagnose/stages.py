@@ -27,6 +27,7 @@ import numpy as np
 from scipy import stats
 
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.band_pool import pool_named
 from jaxcal.diagnose.locate import breakdown
 from jaxcal.diagnose.offset import Offset, Start, baseline_resid, coarse_offset, edge_rows, theta_with_tau
 from jaxcal.diagnose.refit import RefitResult, refit
@@ -95,6 +96,7 @@ class SensorResult(NamedTuple):
     ar_sigma: list[float]
     ar_theta: list[float]
     frame_fit: RefitResult | None = None  # the refit whose covariance gives the affine frame split
+    bands: dict | None = None  # {effect: band check} of the effects whose intervals were pooled over bands
 
 
 
@@ -181,6 +183,7 @@ class Named(NamedTuple):
     final_all: RefitResult
     path: list[float]
     path_ols: list[float]
+    bands: dict | None = None
 
 
 class Relinearise(NamedTuple):
@@ -397,8 +400,22 @@ def _heldout_paths(kind: str, sd: SensorData, sel: Selection, tau_lin: float, or
     return path, path_ols
 
 
+def _band_weak(s: str, final_all: RefitResult, info: dict, force: tuple[str, ...], level: float) -> list[str]:
+    """The pooled effects (not forced) whose Wald test fails at ``level`` once their intervals
+    include the between-band variance."""
+    out = []
+    for n in info:
+        sl = E.slot(s, n)
+        th = np.asarray(final_all.theta[sl.start : sl.start + sl.size], float)
+        se = np.asarray(final_all.se_theta[sl.start : sl.start + sl.size], float)
+        stat = float(np.sum((th / np.maximum(se, 1e-300)) ** 2))
+        if n not in force and stats.chi2.sf(stat, sl.size) > level:
+            out.append(n)
+    return out
+
+
 def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: Selection, det: Detectability,
-                 force: tuple[str, ...] = ()) -> Named | DropOffset:
+                 force: tuple[str, ...] = (), pool: tuple[str, ...] = (), level: float = 1.0) -> Named | DropOffset:
     """Stage 5, the promise of the report: every named effect lowers the physical held-out rms that
     the report prints, step by step (one that does not is demoted to ``rejected`` with a warning that
     says where the residual lives), and no named estimate of the joint refit lies outside its
@@ -412,6 +429,10 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         sd: the sensor's prepared data.
         off, lin, sel, det: stages 1-4.
         force: effects estimated whatever the tests say.
+        pool: effects whose intervals include their between-band variance
+            (:func:`~jaxcal.diagnose.band_pool.pool_named`); one that is then not significant at
+            ``level`` is not named (a warning says the bands disagree).
+        level: the test level of that check (Bonferroni).
     """
     s, nb, fit_rows, tau_lin, unit = sd.sensor, E.N_BASE[kind], sel.fit_rows, off.tau_lin, UNIT_OF[sd.sensor]
     decisions = dict(det.decisions)
@@ -452,7 +473,20 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
                             f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
                             f"recording there; the residual lives {where_text}")
             continue
-        return Named(order, decisions, warnings, base_all, final_all, path, path_ols)
+        final_all, bands = pool_named(kind, s, sd.inp, fit_rows, final_all, order, pool)
+        weak = _band_weak(s, final_all, bands, force, level)
+        if weak:
+            name = weak[0]
+            order.remove(name)
+            sd_b = np.sqrt(np.asarray(bands[name]["tau2"]))
+            decisions[name] = _demote(decisions.get(name), f"not significant once the disagreement of its frequency bands is counted "
+                                      f"(between-band sd {_fmt3(sd_b)} {E.UNITS[(name, s)]})", name)
+            warnings.append(f"{s} {name}: its estimate differs between frequency bands of the motion (between-band sd "
+                            f"{_fmt3(sd_b)} {E.UNITS[(name, s)]}), so with that spread in its interval it is not significant and "
+                            f"is not named: physics the vocabulary lacks (translational acceleration, different sensor filters) "
+                            f"moves it; the residual lives {where_text}")
+            continue
+        return Named(order, decisions, warnings, base_all, final_all, path, path_ols, bands or None)
 
 
 def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, order: list[str], base_all: RefitResult) -> RefitResult:
@@ -489,7 +523,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     lin = linearise(kind, sd, off.tau_lin)
     sel = select_effects(kind, sd, cfg, level, off, lin, start, force)
     det = detectability(kind, sd, cfg, level, off, lin, sel, meas)
-    named = name_effects(kind, sd, off, lin, sel, det, force)
+    named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level)
     if isinstance(named, DropOffset):
         return named
     order, final_all, decisions = named.order, named.final_all, dict(named.decisions)
@@ -510,7 +544,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     return SensorResult(
         sd.sensor, order, {k: v._asdict() for k, v in decisions.items()}, det.mds, off.warnings + det.warnings + named.warnings,
         named.base_all, final_all, sel.fit_rows, named.path, named.path_ols, sel.saturation, off.tau_lin,
-        [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars], frame_fit,
+        [a.order for a in ars], [a.sigma for a in ars], [a.theta for a in ars], frame_fit, named.bands,
     )
 
 

@@ -53,6 +53,9 @@ class SelectConfig(NamedTuple):
         rw_slack: profile log-likelihood slack of that level (1.92: upper end of a ~95 % interval).
         random_walk: allow the random-walk stage in the noise model; off for rows that are separate
             rests (a walk across the gaps between rests would take each rest's level for noise).
+        band_pool: effects whose intervals include the disagreement of their frequency bands
+            (:mod:`jaxcal.diagnose.band_pool`); the reference-free mode pools the accelerometer's
+            motion effects, which unmodelled translational acceleration can move.
     """
 
     alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
@@ -64,6 +67,7 @@ class SelectConfig(NamedTuple):
     rw_pooled: bool = True  # one random-walk level per sensor (axes share it)
     rw_slack: float = 1.92  # upper end of the ~95 % profile interval of that level (conservative)
     random_walk: bool = True  # False: AR noise model only (rows that are separate rests)
+    band_pool: tuple[str, ...] = ()  # effects whose intervals count their between-band variance
 
 
 # ----------------------------------------------------------------------------- systems

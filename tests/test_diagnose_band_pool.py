@@ -1,4 +1,4 @@
-"""The band check of diagnose (jaxcal.diagnose.bands): per-band estimates and their random-effects pooling.
+"""The band check of diagnose (jaxcal.diagnose.band_pool): per-band estimates and their random-effects pooling.
 
 Independent truth: DerSimonian-Laird's closed form on hand-made numbers, and simulated residuals with
 a known coefficient (the same in every band, or a different one per band)."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from jaxcal.diagnose.bands import band_check, random_effects
+from jaxcal.diagnose.band_pool import band_check, random_effects
 
 DT = 0.01
 

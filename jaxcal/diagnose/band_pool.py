@@ -12,18 +12,27 @@ columns, so the baseline stays profiled out) in each band, with a cluster-robust
 covariance; :func:`random_effects` pools the bands per parameter (DerSimonian-Laird) into an
 estimate whose standard error includes the between-band variance ``tau2``. With one consistent
 effect ``tau2`` is ~0 and the pooled standard error is the bands' combined one; with a misspecified
-model it grows with the disagreement. Pure numpy/scipy; ``results/field_diagnose.md`` measures it on
-BROAD, whose mocap says what the reference-free mode should find.
+model it grows with the disagreement. :func:`pool_named` applies it to the named effects of a
+joint refit (the reference-free mode's time offset and lever arm): each interval widens by the
+between-band spread, ``se^2 + tau2``, so an estimate that the bands contradict is neither named
+with false confidence nor hidden (``results/field_diagnose.md`` measures it on BROAD, whose mocap
+says what the reference-free mode should find). Host-side numpy/scipy, plus one forward-mode
+Jacobian of the model (:func:`jaxcal.diagnose.effects.regressors`).
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-__all__ = ["BAND_EDGES_HZ", "BandCheck", "band_pass", "band_estimates", "random_effects", "band_check"]
+from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.refit import RefitResult
+
+__all__ = ["BAND_EDGES_HZ", "BandCheck", "band_pass", "band_estimates", "random_effects", "band_check", "pool_named"]
 
 BAND_EDGES_HZ = (0.2, 1.0, 2.0, 4.0, 8.0, 16.0)  # octave-ish bands of hand motion
 
@@ -139,3 +148,74 @@ def band_check(X: np.ndarray, z: np.ndarray, rows: np.ndarray, block: np.ndarray
     est = est + np.asarray(current, float)[None, :]
     pooled, pooled_se, tau2, q = random_effects(est, se)
     return BandCheck(bands, est, se, pooled, pooled_se, tau2, q, max(len(bands) - 1, 0))
+
+
+def _inflate(fit: RefitResult, idx: np.ndarray, se_new: np.ndarray) -> RefitResult:
+    """``fit`` with the standard errors of theta entries ``idx`` raised to ``se_new`` (the
+    covariance's rows and columns scaled alike, so its correlations stay)."""
+    se = np.asarray(fit.se_theta, float).copy()
+    scale = np.ones(len(fit.beta) + len(se))
+    old = se[idx]
+    scale[len(fit.beta) + idx] = np.divide(se_new, old, out=np.ones_like(se_new), where=old > 0)
+    se[idx] = se_new
+    cov = None if fit.cov is None else fit.cov * scale[:, None] * scale[None, :]
+    return fit._replace(se_theta=se, cov=cov)
+
+
+def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: RefitResult, order: list[str],
+               pool: tuple[str, ...], edges: tuple[float, ...] = BAND_EDGES_HZ, cluster_s: float = 2.0) -> tuple[RefitResult, dict]:
+    """Widen the intervals of the named effects in ``pool`` by their between-band variance.
+
+    The regressors of the baseline and every named effect at the refit's estimate (forward-mode
+    Jacobian of the model) and the refit's physical residual go through :func:`band_check`; each
+    pooled parameter's standard error becomes ``sqrt(se^2 + tau2)``. With one consistent effect
+    ``tau2`` is ~0 and nothing changes; where the bands disagree the interval covers their spread.
+
+    Args:
+        kind: baseline, ``"diag"`` or ``"affine"``.
+        sensor: ``"acc"`` or ``"gyr"``.
+        inp: the reference signals (uniform samples).
+        rows: (N,) bool, the fit rows.
+        fit: the joint refit of the baseline and ``order``.
+        order: the named effects.
+        pool: the effects whose intervals are pooled over bands.
+        edges: band edges (Hz).
+        cluster_s: length (s) of the contiguous time clusters of the band errors. Many short
+            clusters, not the few cross-validation folds: a cluster-robust error from ~5 clusters
+            is itself so uncertain that chance disagreement between bands reads as heterogeneity
+            (measured on a simulated constant delay: 5 fold clusters doubled its interval).
+
+    Returns:
+        ``(fit with widened se_theta / cov, {effect: {"bands_hz", "est", "se", "pooled", "pooled_se",
+        "tau2", "q", "se_refit"}})``; unchanged and ``{}`` where nothing in ``order`` is pooled or
+        fewer than two bands have data.
+    """
+    names = [n for n in order if n in pool]
+    if not names:
+        return fit, {}
+    with jax.enable_x64(True):
+        jb, jt = E.regressors(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp))
+    active = np.flatnonzero(E.effect_mask(sensor, order) > 0)
+    X = np.concatenate([np.asarray(jb), np.asarray(jt)[:, :, active]], axis=2)
+    z = np.asarray(fit.resid, float)
+    ok = np.asarray(rows, bool) & np.isfinite(X).all((1, 2)) & np.isfinite(z).all(1)
+    X, z = np.where(np.isfinite(X), X, 0.0), np.where(np.isfinite(z), z, 0.0)
+    nb = X.shape[2] - len(active)
+    pos = {int(q): nb + k for k, q in enumerate(active)}
+    idx = np.concatenate([np.arange(E.slot(sensor, n).start, E.slot(sensor, n).start + E.slot(sensor, n).size) for n in names])
+    tc = np.asarray(inp.tc, float)
+    block = np.floor((tc - tc[0]) / cluster_s).astype(int)
+    bc = band_check(X, z, ok, block, float(inp.dt), [pos[int(q)] for q in idx], np.asarray(fit.theta, float)[idx], edges)
+    if bc.dof < 1:
+        return fit, {}
+    tau2 = np.nan_to_num(bc.tau2)
+    se_refit = np.asarray(fit.se_theta, float)[idx]
+    out, info, k = _inflate(fit, idx, np.sqrt(se_refit**2 + tau2)), {}, 0
+    for n in names:
+        m = E.slot(sensor, n).size
+        sl = slice(k, k + m)
+        info[n] = {"bands_hz": bc.bands.tolist(), "est": bc.est[:, sl].tolist(), "se": bc.se[:, sl].tolist(),
+                   "pooled": bc.pooled[sl].tolist(), "pooled_se": bc.pooled_se[sl].tolist(), "tau2": tau2[sl].tolist(),
+                   "q": bc.q[sl].tolist(), "se_refit": se_refit[sl].tolist()}
+        k += m
+    return out, info
