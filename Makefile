@@ -16,7 +16,7 @@ export MPLBACKEND := Agg
 # numpy's BLAS threads only contend with XLA's on 2 cores (small products slow down 1000x under load).
 export OPENBLAS_NUM_THREADS := 1
 
-.PHONY: install lock run run-full run-real lint test test-all test-latest margins dist clean
+.PHONY: install lock run run-full run-real bench lint test test-all test-latest margins dist clean
 
 install: $(STAMP)
 
@@ -46,6 +46,12 @@ run-full: $(STAMP)
 ## Public recordings and `jaxcal diagnose` (quick forms; the full forms: each script without --quick)
 run-real: $(STAMP)
 	$(BIN)/python -m experiments.run_all --group real --quick
+
+## The performance record (results/performance.{md,json}) with every key measured: installs the optional
+## `bench` extra (PyTorch's CPU build, for `jax_vs_torch`), then `benchmarks/run.py --quick` (about 7 min on 2 quiet cores).
+bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -c $(LOCK) -e ".[bench]"
+	$(BIN)/python benchmarks/run.py --quick
 
 ## The sdist and wheel users install (`pip install dist/jaxcal-*.whl`); tests/test_packaging.py builds them too.
 dist: $(STAMP)
