@@ -93,21 +93,24 @@ def test_cli_g_sensitivity_recovers_G_and_improves_the_held_out_figure(tmp_path,
 
 def test_rest_gsens_recovers_bias_and_G_in_closed_form(x64):
     """``pose_gyr_k = b + H f_k`` exactly: the weighted regression returns ``b`` and ``H`` to rounding,
-    and a zero weight is the same as dropping that pose."""
+    and a zero weight is the same as dropping that pose. Pose counts from three sizes (the fewest
+    the fit takes, 4, up to 29): each new shape recompiles every eager op (20 draws from 4..29: 12.1 s
+    CPU, from three sizes: 3.4 s)."""
     import jax.numpy as jnp
 
     from jaxcal.multipos.gyro import rest_gsens
 
     rng = np.random.default_rng(3)
     for _ in range(20):
-        P = int(rng.integers(4, 30))
+        P = int(rng.choice([4, 9, 29]))
         f = rng.normal(size=(P, 3))
         f /= np.linalg.norm(f, axis=1, keepdims=True)
         b, H = rng.normal(0, 100, 3), rng.normal(0, 5, (3, 3))
         y = b + f @ H.T
         w = rng.uniform(50, 500, P)
         bb, hh = (np.asarray(x) for x in rest_gsens(jnp.asarray(y), jnp.asarray(f), jnp.asarray(w)))
-        # measured max |error| 1.1e-13 LSB (bias ~100) and 2.8e-14 (H ~5)
+        # measured max |error| 3.1e-13 LSB (bias ~100) and 3.3e-13 (H ~5); a zero weight against the pose
+        # dropped: 1.1e-13
         np.testing.assert_allclose(bb, b, atol=1e-9)
         np.testing.assert_allclose(hh, H, atol=1e-9)
         if P > 4:  # a zero weight leaves the pose out (noisy data, so the fit depends on which poses are in)
