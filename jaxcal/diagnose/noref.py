@@ -429,7 +429,8 @@ def carry_check(ref: SelfReference, t: np.ndarray) -> dict:
 
 def _rest_config(sensor: str, cfg: SelectConfig) -> SelectConfig:
     """The gyroscope's rows are separate rests: an AR noise model without the random walk, which
-    would take each rest's level (its bias + G f) for noise."""
+    would take each rest's level (its bias + G f) for noise. No clock_skew: one clock, the IMU's."""
+    cfg = cfg._replace(exclude=("clock_skew",))
     return cfg if sensor == "acc" else cfg._replace(random_walk=False)
 
 

@@ -53,6 +53,8 @@ class SelectConfig(NamedTuple):
         rw_slack: profile log-likelihood slack of that level (1.92: upper end of a ~95 % interval).
         random_walk: allow the random-walk stage in the noise model; off for rows that are separate
             rests (a walk across the gaps between rests would take each rest's level for noise).
+        exclude: effects not tested in this mode (``clock_skew`` against the IMU's own gyroscope,
+            which shares the accelerometer's clock).
     """
 
     alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
@@ -64,6 +66,7 @@ class SelectConfig(NamedTuple):
     rw_pooled: bool = True  # one random-walk level per sensor (axes share it)
     rw_slack: float = 1.92  # upper end of the ~95 % profile interval of that level (conservative)
     random_walk: bool = True  # False: AR noise model only (rows that are separate rests)
+    exclude: tuple[str, ...] = ()  # effects not tested (without a reference: clock_skew, one clock)
 
 
 # ----------------------------------------------------------------------------- systems
