@@ -743,7 +743,7 @@ def skew_markdown(res: dict) -> str:
             e = r.get(s)
             cells += ["not named", "-"] if e is None else [f"{e['s']:.2f} +- {e['se']:.2f}", f"{abs(e['s'] - r['ppm']) / e['se']:.1f}"]
         L.append(f"| {r['minutes']:g} | {r['ppm']:g} | {r['ppm'] * 1e-6 * r['minutes'] * 60 * 1e3:.1f} ms | {' | '.join(cells)} | "
-                 f"{', '.join(r['named_effects']) or 'nothing'} | {r['wall_s']:.0f} |")
+                 f"{', '.join(f'{s} {n}' for s, n in r['named_effects']) or 'nothing'} | {r['wall_s']:.0f} |")
     L += ["", "### BROAD beside qmt's `syncOptImu`", ""]
     if not res.get("broad"):
         L.append(f"Not run: {res.get('broad_skipped', 'no BROAD data')}.")
