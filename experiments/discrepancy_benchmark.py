@@ -677,6 +677,91 @@ def rigs_markdown(res: dict) -> str:
     return "\n".join(L) + "\n"
 
 
+# ----------------------------------------------------------------------------- clock skew (issue 29)
+
+SKEW_CASES = ((5.0, (0.0, 20.0, 100.0, 500.0)), (20.0, (0.0, 20.0, 500.0)))  # (minutes, ppm values) at 25 Hz
+SKEW_CASES_QUICK = ((5.0, (0.0, 100.0)),)
+BROAD = {"broad07": Path(__file__).resolve().parent.parent / "data" / "broad_07_undisturbed_fast_rotation_B" / "07_undisturbed_fast_rotation_B.npz",
+         "broad21": Path(__file__).resolve().parent.parent / "data" / "broad_21_undisturbed_fast_combined" / "21_undisturbed_fast_combined.npz"}
+
+
+def skew_run(quick: bool) -> dict:
+    """Simulated rigs (25 Hz, rich motion) whose reference clock runs fast by a known ppm
+    (``conceal_clock_skew``: the reference resampled by a cubic spline, independent of the
+    estimator's stretch), diagnosed; and both BROAD trials through ``align`` beside ``qmt``'s
+    ``syncOptImu`` (when the optional extra ``qmt`` is installed)."""
+    from jaxcal.diagnose.align import align_recording, clock_from_qmt
+    from jaxcal.diagnose.stress import conceal_clock_skew
+
+    rows = []
+    for minutes, ppms in SKEW_CASES_QUICK if quick else SKEW_CASES:
+        cfg = RichConfig(n=int(minutes * 60 * 25), fs=25.0, temp_profile="none")
+        base, _ = simulate_recording(jax.random.PRNGKey(29), cfg)
+        for ppm in ppms:
+            t0 = time.perf_counter()
+            rep = diagnose_recording(conceal_clock_skew(base, ppm))
+            row = {"minutes": minutes, "ppm": ppm, "wall_s": time.perf_counter() - t0, "named_effects": sorted(named_effects(rep))}
+            for e in rep["effects"]:
+                if e["name"] == "clock_skew":
+                    row[e["sensor"]] = {"s": e["params"]["s"], "se": e["stderr"]["s"]}
+            rows.append(row)
+            print(row, flush=True)
+    out: dict = {"sim": rows, "broad": {}}
+    try:
+        import qmt
+    except ImportError:
+        out["broad_skipped"] = "qmt not installed (pip install -e '.[qmt]')"
+        return out
+    for name, path in BROAD.items():
+        rec = load_recording(path)
+        t0 = time.perf_counter()
+        a = align_recording(rec).align
+        wall = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        info = qmt.syncOptImu(np.asarray(rec.quat_ref, np.float64), float(rec.fs), np.asarray(rec.gyr, np.float64), float(rec.fs), {})
+        wall_q = time.perf_counter() - t0
+        tau_q, ppm_q = clock_from_qmt(info, a["clock_skew_epoch_s"])
+        out["broad"][name] = {"tau": a["tau"], "tau_se": a["stderr"]["tau"], "ppm": a["clock_skew"], "ppm_se": a["stderr"]["clock_skew"],
+                              "per_sensor": a["clock_skew_per_sensor"], "epoch_s": a["clock_skew_epoch_s"], "tau_qmt": tau_q,
+                              "ppm_qmt": ppm_q, "wall_s": wall, "wall_qmt_s": wall_q, "duration_s": float(rec.t[-1] - rec.t[0])}
+        print(name, out["broad"][name], flush=True)
+    return out
+
+
+def skew_markdown(res: dict) -> str:
+    L = ["## Clock skew (issue 29)", "",
+         "Written by `python -m experiments.discrepancy_benchmark --part skew`. A clock skew `s` (ppm) means the reference "
+         "clock runs `1 + s 1e-6` times as fast as the IMU's (`docs/CONVENTIONS.md`). Simulated rich-motion rigs at 25 Hz "
+         "(one seed, no temperature), the reference resampled by a cubic spline so that the IMU stamped `t` saw the motion "
+         "of reference time `t + s 1e-6 (t - t_mid)`, then `jaxcal diagnose` (reference mode, all candidates). "
+         "|z| = |estimate - truth| / standard error.", "",
+         "| minutes | true ppm | end-to-end offset change | gyr estimate (ppm) | |z| | acc estimate (ppm) | |z| | named | wall (s) |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for r in res["sim"]:
+        cells = []
+        for s in ("gyr", "acc"):
+            e = r.get(s)
+            cells += ["not named", "-"] if e is None else [f"{e['s']:.2f} +- {e['se']:.2f}", f"{abs(e['s'] - r['ppm']) / e['se']:.1f}"]
+        L.append(f"| {r['minutes']:g} | {r['ppm']:g} | {r['ppm'] * 1e-6 * r['minutes'] * 60 * 1e3:.1f} ms | {' | '.join(cells)} | "
+                 f"{', '.join(f'{s} {n}' for s, n in r['named_effects']) or 'nothing'} | {r['wall_s']:.0f} |")
+    L += ["", "### BROAD beside qmt's `syncOptImu`", ""]
+    if not res.get("broad"):
+        L.append(f"Not run: {res.get('broad_skipped', 'no BROAD data')}.")
+        return "\n".join(L) + "\n"
+    L += ["`jaxcal align` (clock skew forced, estimated from the gyroscope) beside `qmt.syncOptImu` (v0.2.4: cross-correlation "
+          "of gyro norms, then BFGS on the start and end shifts of the IMU index; no interval) on the same arrays (mocap "
+          "attitude and gyroscope on the recording's grid). Offsets compared at `align`'s epoch (`clock_skew_epoch_s`), "
+          "`tau` convention (the IMU lags by `tau`).", "",
+          "| trial | duration (s) | tau align (ms) | tau qmt (ms) | difference (ms) | skew align (ppm, 95 %) | skew qmt (ppm) | qmt inside | wall align / qmt (s) |",
+          "|---|---|---|---|---|---|---|---|---|"]
+    for name, b in res["broad"].items():
+        lo, hi = b["ppm"] - 1.96 * b["ppm_se"], b["ppm"] + 1.96 * b["ppm_se"]
+        L.append(f"| {name} | {b['duration_s']:.0f} | {b['tau'] * 1e3:.3f} +- {b['tau_se'] * 1e3:.3f} | {b['tau_qmt'] * 1e3:.3f} | "
+                 f"{(b['tau'] - b['tau_qmt']) * 1e3:+.3f} | {b['ppm']:.1f} [{lo:.1f}, {hi:.1f}] | {b['ppm_qmt']:.1f} | "
+                 f"{'yes' if lo <= b['ppm_qmt'] <= hi else 'NO'} | {b['wall_s']:.0f} / {b['wall_qmt_s']:.0f} |")
+    return "\n".join(L) + "\n"
+
+
 def main(quick: bool, part: str = "all") -> None:
     """Real-data section, run time at scale, simulation benchmark. ``quick`` (``make run``) writes
     ``results/discrepancy_quick.{md,json}`` and ``discrepancy_quick_*`` figures, never the full report."""
@@ -706,6 +791,12 @@ def main(quick: bool, part: str = "all") -> None:
         write_md_section(f"## Run time at scale\n\nOne diagnosis of a {sc['n_samples']}-sample simulated recording (both sensors, "
                          f"all candidates, joint refit) took {sc['wall_s']:.0f} s on 2 shared CPU cores (JAX compilation for the new "
                          f"length included); named: {', '.join(sc['named']) or 'nothing'}.\n", "scale", stem)
+    if part in ("all", "skew"):
+        sk = skew_run(quick)
+        cur = json.loads(js.read_text()) if js.exists() else {}
+        cur["skew"] = sk
+        dump(cur)
+        write_md_section(skew_markdown(sk), "skew", stem)
     if part in ("all", "benchmark"):
         res = run(quick)
         cur = json.loads(js.read_text()) if js.exists() else {}
@@ -718,6 +809,6 @@ def main(quick: bool, part: str = "all") -> None:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--part", choices=("all", "real", "rigs", "scale", "benchmark"), default="all", help="only one section of the report")
+    ap.add_argument("--part", choices=("all", "real", "rigs", "scale", "skew", "benchmark"), default="all", help="only one section of the report")
     a = ap.parse_args()
     main(a.quick, a.part)

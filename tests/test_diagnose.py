@@ -147,10 +147,11 @@ def test_simulate_batch_equals_one_by_one(x64):
     """
     cfg = RichConfig(n=1500)
     th = np.zeros((2, E.N_THETA["acc"]))
-    th[1, E.slot("acc", "lever_arm").start : 3] = [0.01, -0.02, 0.005]
+    la = slice(E.slot("acc", "lever_arm").start, E.slot("acc", "lever_arm").start + 3)
+    th[1, la] = [0.01, -0.02, 0.005]
     batch = simulate_batch(jax.vmap(jax.random.PRNGKey)(jnp.arange(5, 7)), cfg, {"acc": th}, [{}, {"gyr": 2000.0}])
     for i, (rec_b, truth_b) in enumerate(batch):
-        eff = {("acc", "lever_arm"): {"r": th[i, :3]}} if i else None
+        eff = {("acc", "lever_arm"): {"r": th[i, la]}} if i else None
         rec, truth = simulate_recording(jax.random.PRNGKey(5 + i), cfg, eff, {"gyr": 2000.0} if i else None)
         assert np.asarray(rec_b.acc_ref).dtype == np.float64
         for k in ("acc", "gyr"):

@@ -1,9 +1,10 @@
-"""``jaxcal align``: the IMU-to-mocap time offset, rotation and lever arm, and the mocap ground
-truth re-expressed in the IMU frame and on the IMU clock.
+"""``jaxcal align``: the IMU-to-mocap time offset, clock skew, rotation and lever arm, and the mocap
+ground truth re-expressed in the IMU frame and on the IMU clock.
 
 The engine is ``diagnose``'s (:func:`jaxcal.diagnose.core.diagnose_prepared`) with the ``affine``
-baseline and the rig's three unknowns estimated whatever the tests say: the gyroscope's ``time_offset`` (the
-rig's clock offset; its coarse value guides the accelerometer's search) and the accelerometer's
+baseline and the rig's unknowns estimated whatever the tests say: the gyroscope's ``time_offset`` (the
+rig's clock offset; its coarse value guides the accelerometer's search) and ``clock_skew`` (the rate
+of the reference clock against the IMU's, both sensors), and the accelerometer's
 ``lever_arm`` and own ``time_offset`` (its filter delay may differ by a millisecond or two, which a
 lever arm would otherwise absorb at high rates) (``force``); each sensor in its own trusted band
 (:func:`jaxcal.diagnose.core.diagnose_banded`); the rotation is
@@ -11,10 +12,12 @@ the polar factor of the gyroscope's affine matrix (:mod:`jaxcal.diagnose.frames`
 vocabulary effect is still tested and reported, so a rig with, say, a g-sensitive gyro says so.
 
 Conventions (CONVENTIONS.md "align"): ``tau`` has the sign of ``time_offset`` (tau > 0: the IMU
-lags the reference, the IMU sample stamped ``t`` saw the motion of reference time ``t - tau``);
+lags the reference, the IMU sample stamped ``t`` saw the motion of reference time ``t - tau``, at
+the epoch ``clock_skew_epoch_s``); ``clock_skew`` (ppm) > 0: the reference clock runs fast, so the IMU
+sample stamped ``t`` saw the motion of reference time ``t_ref(t) = t - tau + 1e-6 clock_skew (t - epoch)``;
 ``R_ref_imu`` rotates IMU-frame vectors into the reference body frame; ``r`` is the IMU position in
 the reference body frame (m). The ground truth is then, at IMU time ``t``:
-``p_imu = p_ref(t - tau) + R_world_ref(t - tau) r``, ``R_world_imu = R_world_ref(t - tau) R_ref_imu``.
+``p_imu = p_ref(t_ref) + R_world_ref(t_ref) r``, ``R_world_imu = R_world_ref(t_ref) R_ref_imu``.
 Only :func:`write_alignment` touches the file system.
 """
 
@@ -36,9 +39,10 @@ from jaxcal.diagnose.report import build_report_banded
 from jaxcal.diagnose.select import SelectConfig
 from jaxcal.recording import Recording
 
-__all__ = ["AlignResult", "align_recording", "groundtruth_table", "write_alignment", "EUROC_GT_COLUMNS"]
+__all__ = ["AlignResult", "align_recording", "groundtruth_table", "write_alignment", "EUROC_GT_COLUMNS", "clock_from_qmt"]
 
-FORCE = {"acc": ("lever_arm", "time_offset"), "gyr": ("time_offset",)}  # the accelerometer's own filter delay may differ
+# the accelerometer's own filter delay may differ; the clocks' rate (clock_skew) is estimated for both
+FORCE = {"acc": ("lever_arm", "time_offset", "clock_skew"), "gyr": ("time_offset", "clock_skew")}
 
 EUROC_GT_COLUMNS = (
     "#timestamp", "p_RS_R_x [m]", "p_RS_R_y [m]", "p_RS_R_z [m]", "q_RS_w []", "q_RS_x []", "q_RS_y []", "q_RS_z []",
@@ -66,19 +70,25 @@ def _effect(rep: dict, sensor: str, name: str) -> dict | None:
     return None
 
 
-def _combine_tau(rep: dict) -> tuple[float, float, dict]:
-    """The rig's time offset: the gyroscope's estimate (its regressor, the rate's derivative, is the
-    sharper; the accelerometer's own, which may carry a different filter delay, is reported
-    beside it); without a gyroscope reference, the accelerometer's."""
+def _combine(rep: dict, name: str, param: str) -> tuple[float, float, dict]:
+    """The rig's value of a clock effect (``time_offset`` ``tau``, ``clock_skew`` ``s``): the
+    gyroscope's estimate (its regressor, the rate's derivative, is the sharper; the accelerometer's
+    own, which may carry a different filter delay, is reported beside it); without a gyroscope
+    reference, the accelerometer's."""
     per = {}
     for s in ("gyr", "acc"):
-        e = _effect(rep, s, "time_offset")
+        e = _effect(rep, s, name)
         if e is not None:
-            per[s] = (float(e["params"]["tau"]), float(e["stderr"]["tau"]))
+            per[s] = (float(e["params"][param]), float(e["stderr"][param]))
     if not per:
-        raise ValueError("no time offset could be estimated (no sensor with a reference)")
-    tau, se = per["gyr"] if "gyr" in per else per["acc"]
-    return tau, se, per
+        raise ValueError(f"no {name.replace('_', ' ')} could be estimated (no sensor with a reference)")
+    v, se = per["gyr"] if "gyr" in per else per["acc"]
+    return v, se, per
+
+
+def _combine_tau(rep: dict) -> tuple[float, float, dict]:
+    """The rig's time offset (:func:`_combine`)."""
+    return _combine(rep, "time_offset", "tau")
 
 
 def _track(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -97,13 +107,13 @@ def _track(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def groundtruth_table(t_imu: np.ndarray, track: tuple[np.ndarray, np.ndarray, np.ndarray], tau: float, R_ref_imu: np.ndarray,
                       r: np.ndarray, b_gyr: np.ndarray, b_acc_ms2: np.ndarray, valid: np.ndarray | None = None,
-                      t0: float = 0.0, sigma: float = 0.02) -> np.ndarray:
+                      t0: float = 0.0, sigma: float = 0.02, skew_ppm: float = 0.0, epoch: float = 0.0) -> np.ndarray:
     """EuRoC ``state_groundtruth_estimate0`` rows of the IMU on its own clock.
 
     Args:
         t_imu: (N,) IMU sample times (s, recording clock).
         track: reference pose track ``(t (M,), p (M, 3) m world, q (M, 4) [w,x,y,z] body to world)``.
-        tau: time offset (s; the IMU at ``t`` saw the reference at ``t - tau``).
+        tau: time offset (s; the IMU at ``t`` saw the reference at ``t - tau + 1e-6 skew_ppm (t - epoch)``).
         R_ref_imu: (3, 3) rotates IMU-frame vectors into the reference body frame.
         r: (3,) IMU position in the reference body frame (m).
         b_gyr, b_acc_ms2: (3,) biases written in every row (rad/s, m/s^2).
@@ -111,12 +121,14 @@ def groundtruth_table(t_imu: np.ndarray, track: tuple[np.ndarray, np.ndarray, np
             across a gap, :func:`jaxcal.diagnose.kinematics.reference_gap_mask`).
         t0: added to ``t_imu`` for the time stamps (e.g. the recording's Unix start).
         sigma: Gaussian width (s) of the velocity's derivative kernel.
+        skew_ppm: clock skew (ppm; positive: the reference clock runs fast).
+        epoch: the recording time (s) at which ``tau`` holds.
 
     Returns:
         (K, 17) float array in :data:`EUROC_GT_COLUMNS` order, time stamps in integer ns (as float64).
     """
     tt, p, q = track
-    tq = np.asarray(t_imu, float) - tau
+    tq = np.asarray(t_imu, float) - tau + skew_ppm * 1e-6 * (np.asarray(t_imu, float) - epoch)
     ok = K.reference_gap_mask(tq, tt) if valid is None else np.asarray(valid, bool)
     inside = (tq >= tt[0]) & (tq <= tt[-1])
     ok = ok & inside
@@ -136,6 +148,28 @@ def groundtruth_table(t_imu: np.ndarray, track: tuple[np.ndarray, np.ndarray, np
     ts = np.round((np.asarray(t_imu, float) + t0) * 1e9)
     n = int(ok.sum())
     return np.column_stack([ts[ok], p_imu[ok], q_imu[ok], v[ok], np.tile(b_gyr, (n, 1)), np.tile(b_acc_ms2, (n, 1))])
+
+
+def clock_from_qmt(sync_info: dict, epoch: float) -> tuple[float, float]:
+    """``qmt.syncOptImu``'s result in ``align``'s convention: ``(tau at epoch (s), clock_skew (ppm))``.
+
+    qmt maps mocap sample ``j`` to IMU sample ``i0 + j rate_imu' / rate_opt`` (``sync_info["data"]["imu"]["rate"]``,
+    the IMU's rate on the mocap's clock, and the ``["opt", "ind", 0, "imu", "ind", i0]`` entry). Its
+    mocap rate at sample ``j`` is ``quatToGyrStrapdown``'s, the rotation from sample ``j - 1`` to ``j``:
+    the rate of mocap time ``(j - 1/2) / rate_opt``. So the IMU sample stamped ``t = i / rate_imu`` (its
+    nominal rate) saw the mocap time ``t_ref = (t - i0 / rate_imu) rate_imu / rate_imu' - 1 / (2 rate_opt)``;
+    then ``1 + 1e-6 clock_skew = rate_imu / rate_imu'`` and ``tau = epoch - t_ref(epoch)``. Both streams'
+    first samples are at time 0.
+
+    Args:
+        sync_info: the dict ``qmt.syncOptImu`` returns.
+        epoch: the time (s) at which ``tau`` is wanted (``align.json``'s ``clock_skew_epoch_s``).
+    """
+    data = sync_info["data"]
+    nominal, rate, opt = float(data["imu_offsetonly"]["rate"]), float(data["imu"]["rate"]), float(data["opt"]["rate"])
+    i0 = next(float(e[5]) for e in sync_info["sync"] if e[0] == "opt" and e[3] == "imu" and e[1] == "ind")
+    t_ref = (epoch - i0 / nominal) * nominal / rate - 0.5 / opt
+    return epoch - t_ref, (nominal / rate - 1.0) * 1e6
 
 
 def align_recording(rec: Recording, pose_sigma: float | None = None, config: SelectConfig = SelectConfig()) -> AlignResult:
@@ -161,12 +195,16 @@ def align_recording(rec: Recording, pose_sigma: float | None = None, config: Sel
     rep = build_report_banded(preps, results, "affine", time.perf_counter() - t_start)
     fr = rep["frames"]
     tau, tau_se, per = _combine_tau(rep)
+    skew, skew_se, skew_per = _combine(rep, "clock_skew", "s")
+    t_skew = preps["gyr" if "gyr" in skew_per else "acc"].t
     R = np.asarray(fr["R_ref_imu"])
     out: dict = {"tau": tau, "tau_stderr": tau_se, "tau_per_sensor": {s: {"tau": v[0], "stderr": v[1]} for s, v in per.items()},
                  "R_ref_imu": R.tolist(), "R_ref_imu_from": fr["R_ref_imu_from"],
                  "rotation_deg": fr["gyr"]["rotation_deg"], "rotation_deg_stderr": fr["gyr"].get("rotation_deg_stderr"),
                  "rotvec_imu_ref_deg": fr["gyr"]["rotvec_imu_ref_deg"], "rotvec_imu_ref_deg_stderr": fr["gyr"].get("rotvec_imu_ref_deg_stderr"),
-                 "stderr": {"tau": tau_se}}
+                 "clock_skew": skew, "clock_skew_epoch_s": 0.5 * float(t_skew[0] + t_skew[-1]),
+                 "clock_skew_per_sensor": {s: {"clock_skew": v[0], "stderr": v[1]} for s, v in skew_per.items()},
+                 "stderr": {"tau": tau_se, "clock_skew": skew_se}}
     out["stderr"]["R_ref_imu_rotvec_deg"] = fr["gyr"].get("rotvec_imu_ref_deg_stderr")
     b_gyr = np.asarray(results["gyr"].final_all.beta[9:12])
     b_acc = np.zeros(3)
@@ -191,7 +229,8 @@ def align_recording(rec: Recording, pose_sigma: float | None = None, config: Sel
     # attenuate the velocity itself: 18 % at 1 Hz for 100 ms)
     track = _track(rec)
     v_sigma = 2.0 * max(float(np.median(np.diff(track[0]))), float(np.median(np.diff(np.asarray(rec.t, float)))))
-    gt = groundtruth_table(np.asarray(rec.t, float), track, tau, R, r, b_gyr, b_acc, t0=t0, sigma=v_sigma)
+    gt = groundtruth_table(np.asarray(rec.t, float), track, tau, R, r, b_gyr, b_acc, t0=t0, sigma=v_sigma, skew_ppm=skew,
+                           epoch=out["clock_skew_epoch_s"])
     out["groundtruth_rows"] = int(len(gt))
     out["runtime_s"] = time.perf_counter() - t_start
     return AlignResult(out, rep, gt, results, {k: p.t for k, p in preps.items()})

@@ -16,6 +16,7 @@ from jaxcal.recording import Recording
 
 __all__ = [
     "conceal",
+    "conceal_clock_skew",
     "conceal_drift",
     "conceal_gsens",
     "conceal_gsens_cal",
@@ -134,7 +135,8 @@ def conceal(rec: Recording, sensor: str, name: str, v: np.ndarray) -> Recording:
     """Conceal vocabulary effect ``name`` of ``sensor`` with flat parameters ``v``.
 
     ``lever_arm`` (acc; v = r), ``time_offset`` (v = [tau]), ``g_sensitivity`` (gyr; v = G flat),
-    ``misalignment`` (v = m6), ``bias_drift`` (v = d). Raises KeyError for any other name.
+    ``misalignment`` (v = m6), ``bias_drift`` (v = d), ``clock_skew`` (v = [ppm]; the reference's clock,
+    so both sensors). Raises KeyError for any other name.
 
     Args:
         rec: the recording (``acc``/``gyr`` in g and rad/s; a pose for ``lever_arm``).
@@ -154,7 +156,44 @@ def conceal(rec: Recording, sensor: str, name: str, v: np.ndarray) -> Recording:
         return conceal_misalignment(rec, sensor, v)
     if name == "bias_drift":
         return conceal_drift(rec, sensor, v)
+    if name == "clock_skew":  # the reference's clock: both sensors
+        return conceal_clock_skew(rec, float(v[0]))
     raise KeyError(name)
+
+
+def conceal_clock_skew(rec: Recording, ppm: float) -> Recording:
+    """Make the reference clock run ``1 + ppm 1e-6`` times as fast as the IMU's about the
+    recording's middle time ``c``: the reference motion of grid time ``u`` becomes that of
+    ``c + (u - c) / (1 + ppm 1e-6)``, so the IMU stamped ``t`` saw the motion the reference stamps
+    ``c + (1 + ppm 1e-6) (t - c)``. The IMU streams are not touched.
+
+    Rate references (``acc_ref``, ``gyr_ref``) are resampled by a not-a-knot cubic spline (held at
+    the ends), a pose on the grid by the reference's own interpolation
+    (:func:`jaxcal.diagnose.stress.shift_reference_clock`'s: linear position, slerp), and a track
+    ``gt_t`` is re-stamped ``c + (1 + ppm 1e-6) (gt_t - c)``. Values are not rescaled (a rate in
+    the reference's seconds would be ``1 + ppm 1e-6`` smaller: the baseline's scale).
+
+    Truth: clock_skew += ppm for both sensors (CONVENTIONS.md), held at the middle ``c``.
+
+    Args:
+        rec: the recording (a rate or pose reference).
+        ppm: the skew (ppm; positive: the reference clock runs fast).
+    """
+    from scipy.interpolate import CubicSpline
+
+    from jaxcal.diagnose.stress import _sampler  # the reference's own interpolation, gaps and all
+
+    t = np.asarray(rec.t, np.float64)
+    c = 0.5 * (t[0] + t[-1])
+    q = np.clip(c + (t - c) / (1.0 + ppm * 1e-6), t[0], t[-1])
+    changes = {k: CubicSpline(t, np.asarray(getattr(rec, k), np.float64), axis=0)(q)
+               for k in ("acc_ref", "gyr_ref") if getattr(rec, k) is not None}
+    if rec.pos_ref is not None and rec.quat_ref is not None:
+        p, qq, ok = _sampler(rec, None)(q)
+        changes.update(pos_ref=p, quat_ref=qq, ref_valid=ok)
+        if rec.gt_t is not None:
+            changes["gt_t"] = c + (1.0 + ppm * 1e-6) * (np.asarray(rec.gt_t, np.float64) - c)
+    return rec.replace(**changes)
 
 
 # ----------------------------------------------------------------------------- effects sized by a null report

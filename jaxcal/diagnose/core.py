@@ -72,15 +72,18 @@ REFERENCE = Mode("motion")
 """Against the reference motion (mocap, labels): the residual of :func:`prepare`."""
 
 
-def count_tests(kind: str, prep: Prepared) -> int:
-    """The Bonferroni count of a prepared recording: the candidates of all its sensors, and a
-    saturation test per sensor in raw counts.
+def count_tests(kind: str, prep: Prepared, cfg: SelectConfig = SelectConfig(), mode: Mode | None = None) -> int:
+    """The Bonferroni count of a prepared recording: the candidates of all its sensors that the
+    mode tests (``mode.sensor_config``'s ``exclude``), and a saturation test per sensor in raw counts.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
         prep: the prepared recording.
+        cfg: test level and search settings.
+        mode: the mode (None: the reference mode's, which excludes nothing by default).
     """
-    return sum(len(candidates(kind, sd)) + (sd.raw is not None) for sd in prep.sensors.values())
+    conf = (lambda s: cfg) if mode is None else (lambda s: mode.sensor_config(s, cfg))
+    return sum(len(candidates(kind, sd, conf(s).exclude)) + (sd.raw is not None) for s, sd in prep.sensors.items())
 
 
 def diagnose_sensors(preps: Mapping[str, Prepared], kind: str, cfg: SelectConfig, n_tests: int,

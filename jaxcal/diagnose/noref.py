@@ -434,9 +434,11 @@ MOTION_POOLED = ("time_offset", "lever_arm")
 
 def _rest_config(sensor: str, cfg: SelectConfig) -> SelectConfig:
     """The gyroscope's rows are separate rests: an AR noise model without the random walk, which
-    would take each rest's level (its bias + G f) for noise. The accelerometer's motion effects
-    (time offset, lever arm) count the disagreement of their frequency bands in their intervals
-    (:data:`MOTION_POOLED`): translational acceleration that the vocabulary lacks moves them."""
+    would take each rest's level (its bias + G f) for noise. No clock_skew: one clock, the IMU's.
+    The accelerometer's motion effects (time offset, lever arm) count the disagreement of their
+    frequency bands in their intervals (:data:`MOTION_POOLED`): translational acceleration that
+    the vocabulary lacks moves them."""
+    cfg = cfg._replace(exclude=("clock_skew",))
     return cfg._replace(band_pool=MOTION_POOLED) if sensor == "acc" else cfg._replace(random_walk=False)
 
 
@@ -469,7 +471,7 @@ def diagnose_noref(rec: Recording, kind: str = "affine", cfg: SelectConfig = Sel
     """
     ref = self_reference(rec, noref)
     prep = prepare_noref(rec, noref, ref)
-    res = diagnose_sensors({s: prep for s in prep.sensors}, kind, cfg, count_tests(kind, prep), force, mode=SELF)
+    res = diagnose_sensors({s: prep for s in prep.sensors}, kind, cfg, count_tests(kind, prep, cfg, SELF), force, mode=SELF)
     return prep, res, ref
 
 

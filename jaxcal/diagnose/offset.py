@@ -59,7 +59,7 @@ def coarse_offset(kind: str, sd: SensorData, cfg: SelectConfig, level: float, st
     s = sd.sensor
     dt = float(sd.inp.dt)
     warnings: list[str] = []
-    cands = candidates(kind, sd)
+    cands = candidates(kind, sd, cfg.exclude)
     if start.no_offset:
         cands = [c for c in cands if c != "time_offset"]
     pre: list[str] = []

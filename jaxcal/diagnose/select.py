@@ -143,15 +143,18 @@ def group_columns(kind: str, sensor: str, name: str) -> list[int]:
     return list(range(nb + sl.start, nb + sl.start + sl.size))
 
 
-def candidates(kind: str, sd: SensorData) -> list[str]:
+def candidates(kind: str, sd: SensorData, exclude: tuple[str, ...] = ()) -> list[str]:
     """Smooth effects testable for this sensor and baseline (saturation is handled separately).
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
         sd: the sensor's prepared data.
+        exclude: effects the mode does not test (``SelectConfig.exclude``).
     """
     out = []
     for sl in E.LAYOUT[sd.sensor]:
+        if sl.name in exclude:
+            continue
         if kind == "affine" and sl.name == "misalignment":
             continue  # absorbed by the affine baseline
         if sl.name.startswith("temperature") and not sd.has_temp:

@@ -44,6 +44,7 @@ import numpy as np
 from jaxcal import rotation
 from jaxcal.diagnose.conceal import (
     conceal,
+    conceal_clock_skew,
     conceal_drift,
     conceal_gsens,
     conceal_gsens_cal,
@@ -59,6 +60,7 @@ __all__ = [
     "StressConfig",
     "add_vibration",
     "conceal",
+    "conceal_clock_skew",
     "conceal_drift",
     "conceal_gsens",
     "conceal_lever_arm",

@@ -56,6 +56,8 @@ class SelectConfig(NamedTuple):
         band_pool: effects whose intervals include the disagreement of their frequency bands
             (:mod:`jaxcal.diagnose.band_pool`); the reference-free mode pools the accelerometer's
             motion effects, which unmodelled translational acceleration can move.
+        exclude: effects not tested in this mode (``clock_skew`` against the IMU's own gyroscope,
+            which shares the accelerometer's clock).
     """
 
     alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
@@ -68,6 +70,7 @@ class SelectConfig(NamedTuple):
     rw_slack: float = 1.92  # upper end of the ~95 % profile interval of that level (conservative)
     random_walk: bool = True  # False: AR noise model only (rows that are separate rests)
     band_pool: tuple[str, ...] = ()  # effects whose intervals count their between-band variance
+    exclude: tuple[str, ...] = ()  # effects not tested (without a reference: clock_skew, one clock)
 
 
 # ----------------------------------------------------------------------------- systems

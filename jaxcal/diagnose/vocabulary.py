@@ -74,11 +74,13 @@ class Effect:
             above it: "not excited"); empty: no such warning.
         plausible_range: per sensor, the largest |component| an estimate may have and still be a name.
         excites: the motion or conditions that excite it (said in warnings).
-        stage: its place in the forward chain (0: the physical input, 1: time, 2: scale
-            nonlinearity, 3: misalignment, 4-6: temperature and drift terms); ``None``: not a smooth
+        stage: its place in the forward chain (-1: the reference's clock, 0: the physical input, 1:
+            time, 2: scale nonlinearity, 3: misalignment, 4-6: temperature and drift terms); ``None``: not a smooth
             effect (saturation, handled on raw counts).
         forward: ``(p, x, inp) -> x``, the step of the forward model (JAX; ``p`` its flat
             parameters, ``x`` (N, 3) the input so far, ``inp`` the :class:`~jaxcal.diagnose.effects.Inputs`).
+        retime: ``(p, inp) -> inp``, a time map of the reference signals applied before every other
+            step (``clock_skew``; its ``forward`` is None).
         inverse: ``(p, x, ctx) -> x``, that step undone (numpy; ``p`` in ``shape``,
             :class:`InverseContext`); None: not inverted on its own.
         coupled: acts on the physical input through the other sensor (lever arm, g-sensitivity):
@@ -101,6 +103,7 @@ class Effect:
     stage: float | None
     forward: Callable[[Any, Any, Any], Any] | None = None
     inverse: Callable[[np.ndarray, np.ndarray, InverseContext], np.ndarray] | None = None
+    retime: Callable[[Any, Any], Any] | None = None
     coupled: bool = False
     needs: tuple[str, ...] = ()
     not_carried: str = ""
@@ -168,6 +171,17 @@ def _time_offset(tau, x, inp):
     from jaxcal.diagnose.effects import shift_signal
 
     return shift_signal(x, tau[0], inp.dt)
+
+
+def _clock_skew(s_ppm, inp):
+    """The reference signals on the IMU's clock: ``f, w, dw/dt`` (and ``ww``) at ``t + 1e-6 s tc``,
+    one stretch of all their channels."""
+    from jaxcal.diagnose.effects import stretch_signal
+
+    parts = [inp.f, inp.w, inp.wdot] + ([] if inp.ww is None else [inp.ww.reshape(-1, 9)])
+    out = stretch_signal(jnp.concatenate(parts, axis=1), s_ppm[0] * 1e-6, inp.tc, inp.dt)
+    ww = None if inp.ww is None else out[:, 9:].reshape(inp.ww.shape)
+    return inp._replace(f=out[:, :3], w=out[:, 3:6], wdot=out[:, 6:9], ww=ww)
 
 
 def _scale_nonlinearity(k2, x, inp):
@@ -273,6 +287,12 @@ TIME_OFFSET = Effect(
     "time_offset", "tau", 1, (), BOTH, {"acc": "s", "gyr": "s"}, {"acc": 0.01, "gyr": 0.01}, {"acc": 2.0, "gyr": 2.0},
     "changing inputs (angular acceleration); with none a time offset is unobservable", 1.0, _time_offset,
     lambda tau, x, ctx: unshift(x, ctx.t, float(tau), ctx.slices))
+CLOCK_SKEW = Effect(
+    "clock_skew", "s", 1, (), BOTH, {"acc": "ppm", "gyr": "ppm"}, {"acc": 100.0, "gyr": 100.0},
+    # a crystal is within 100 ppm; an internal RC oscillator counted at its nominal rate within about 1 %
+    {"acc": 1e4, "gyr": 1e4}, "changing inputs over a long recording (the offset it makes grows with time from the middle)",
+    -1.0, retime=_clock_skew,
+    not_carried="a rate between the IMU's clock and its reference's does not transfer to a recording without that reference")
 TEMPERATURE_BIAS = Effect(
     "temperature_bias", "k", 3, (3,), BOTH, {"acc": "g/degC", "gyr": "(rad/s)/degC"}, {"acc": 1e-3, "gyr": 5e-4},
     {"acc": 0.01, "gyr": 0.01}, "a temperature change that is not monotonic in time (heat and cool)", 5.0, _temperature_bias,
@@ -289,6 +309,6 @@ SATURATION = Effect(
     "saturation", "limit", 1, (), BOTH, {"acc": "LSB", "gyr": "LSB"}, {}, {}, "inputs beyond the full-scale range", None,
     not_carried="clipped samples cannot be restored")
 
-for _e in (LEVER_ARM, G_SENSITIVITY, MISALIGNMENT, SCALE_NONLINEARITY, TIME_OFFSET, TEMPERATURE_BIAS, TEMPERATURE_SCALE,
+for _e in (LEVER_ARM, G_SENSITIVITY, MISALIGNMENT, SCALE_NONLINEARITY, TIME_OFFSET, CLOCK_SKEW, TEMPERATURE_BIAS, TEMPERATURE_SCALE,
            BIAS_DRIFT, SATURATION):
     register(_e)
