@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from jaxcal.diagnose.band_pool import band_check, random_effects
+from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.band_pool import band_check, candidate_spread, random_effects, widen_information
 
 DT = 0.01
 
@@ -67,3 +68,34 @@ def test_a_band_dependent_coefficient_widens_the_pooled_interval():
     # the pooled value targets the bands' average coefficient (0.01), and its interval says so
     # (measured: pooled 0.0107, se 0.0063, while the fixed-effect se is 0.0015)
     assert abs(bc.pooled[0] - 0.01) <= 2 * bc.pooled_se[0]
+
+
+def test_widen_information_closed_form():
+    # diagonal information: each variance 1/F_jj grows by tau2_j, so the information is 1/(1/F_jj + tau2_j)
+    F = np.diag([4.0, 1e6])
+    np.testing.assert_allclose(widen_information(F, np.array([0.25, 0.0])), np.diag([1.0 / (0.25 + 0.25), 1e6]), rtol=1e-12)
+    # correlated: (F^-1 + D)^-1 against numpy's inverse; no spread leaves F as it is
+    F = np.array([[2.0, 0.5], [0.5, 1.0]])
+    D = np.diag([0.3, 0.1])
+    np.testing.assert_allclose(widen_information(F, np.diag(D)), np.linalg.inv(np.linalg.inv(F) + D), rtol=1e-12)
+    assert widen_information(F, np.zeros(2)) is F
+
+
+def _inputs(n):
+    t = np.arange(n) * DT
+    z = np.zeros((n, 3))
+    return E.Inputs(z, z, z, t - t.mean(), np.zeros(n), np.asarray(DT))
+
+
+def test_candidate_spread_is_what_the_bands_disagree_by():
+    # the candidate (column 0) against the baseline (constants): before it is fitted, its between-band
+    # variance is ~0 when one coefficient holds in every band, and about the bands' spread when not
+    rng = np.random.default_rng(2)
+    X, z, rows, _ = _system(rng, 12000, (0.01,) * 5)
+    same = candidate_spread(X, z, rows, _inputs(len(z)), [1, 2, 3], [0])
+    X, z, rows, _ = _system(rng, 12000, (0.03, 0.02, 0.01, 0.0, -0.01))
+    differ = candidate_spread(X, z, rows, _inputs(len(z)), [1, 2, 3], [0])
+    assert same.shape == (1,) and differ.shape == (1,)
+    assert same[0] <= 1e-6  # the sampling noise alone (tau2 is truncated at 0; measured 0)
+    # the five coefficients' variance is 2.5e-4; DerSimonian-Laird's tau2 estimates it from five bands
+    assert 0.25 * 2.5e-4 <= differ[0] <= 4 * 2.5e-4  # measured 2.29e-4

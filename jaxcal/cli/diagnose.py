@@ -79,8 +79,7 @@ def _run_diagnose(args: argparse.Namespace) -> int:
     if noref and args.model_out is not None:
         raise UsageError(f"{args.recording}: --model-out needs a reference motion (a diagnosed model of the reference-free "
                          "mode is not written yet)")
-    # refuse bad input (too short, a reference that does not explain the sensor, no rest to start from without
-    # one) before any progress line
+    # refuse bad input (too short, a reference that does not explain the sensor) before any progress line
     if noref:
         try:
             check_input(rec)

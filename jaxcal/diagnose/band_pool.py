@@ -30,9 +30,10 @@ import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.refit import RefitResult
+from jaxcal.diagnose.refit import RefitResult, scaled_inv
 
-__all__ = ["BAND_EDGES_HZ", "BandCheck", "band_pass", "band_estimates", "random_effects", "band_check", "pool_named"]
+__all__ = ["BAND_EDGES_HZ", "BandCheck", "band_pass", "band_estimates", "random_effects", "band_check", "time_clusters",
+           "candidate_spread", "widen_information", "pool_named"]
 
 BAND_EDGES_HZ = (0.2, 1.0, 2.0, 4.0, 8.0, 16.0)  # octave-ish bands of hand motion
 
@@ -162,6 +163,37 @@ def _inflate(fit: RefitResult, idx: np.ndarray, se_new: np.ndarray) -> RefitResu
     return fit._replace(se_theta=se, cov=cov)
 
 
+def time_clusters(inp: E.Inputs, cluster_s: float = 2.0) -> np.ndarray:
+    """(N,) ids of contiguous ``cluster_s``-second time clusters (see :func:`pool_named`)."""
+    tc = np.asarray(inp.tc, float)
+    return np.floor((tc - tc[0]) / cluster_s).astype(int)
+
+
+def candidate_spread(x: np.ndarray, z: np.ndarray, rows: np.ndarray, inp: E.Inputs, base: list[int], cols: list[int],
+                     edges: tuple[float, ...] = BAND_EDGES_HZ, cluster_s: float = 2.0) -> np.ndarray:
+    """(len(cols),) between-band variance ``tau2`` of a candidate effect before it is named: its
+    columns ``cols`` and the baseline's ``base`` of the linearised regressors ``x`` (N, 3, Q),
+    band by band against the baseline residual ``z`` (N, 3). It is what :func:`pool_named` would
+    add to the candidate's interval, so a minimum detectable size counts it too
+    (:func:`widen_information`). Zeros where fewer than two bands have data."""
+    X = np.asarray(x, float)[:, :, list(base) + list(cols)]
+    z = np.asarray(z, float)
+    ok = np.asarray(rows, bool) & np.isfinite(X).all((1, 2)) & np.isfinite(z).all(1)
+    X, z = np.where(np.isfinite(X), X, 0.0), np.where(np.isfinite(z), z, 0.0)
+    nb = len(base)
+    bc = band_check(X, z, ok, time_clusters(inp, cluster_s), float(inp.dt), list(range(nb, nb + len(cols))), np.zeros(len(cols)), edges)
+    return np.zeros(len(cols)) if bc.dof < 1 else np.nan_to_num(bc.tau2)
+
+
+def widen_information(F: np.ndarray, tau2: np.ndarray) -> np.ndarray:
+    """The Fisher information ``(F^-1 + diag(tau2))^-1``: a group's information once the between-band
+    variance is in its covariance, as :func:`pool_named` puts it into the interval."""
+    tau2 = np.asarray(tau2, float)
+    if not np.any(tau2 > 0):
+        return F
+    return scaled_inv(scaled_inv(F) + np.diag(tau2))
+
+
 def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: RefitResult, order: list[str],
                pool: tuple[str, ...], edges: tuple[float, ...] = BAND_EDGES_HZ, cluster_s: float = 2.0) -> tuple[RefitResult, dict]:
     """Widen the intervals of the named effects in ``pool`` by their between-band variance.
@@ -203,9 +235,7 @@ def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: Ref
     nb = X.shape[2] - len(active)
     pos = {int(q): nb + k for k, q in enumerate(active)}
     idx = np.concatenate([np.arange(E.slot(sensor, n).start, E.slot(sensor, n).start + E.slot(sensor, n).size) for n in names])
-    tc = np.asarray(inp.tc, float)
-    block = np.floor((tc - tc[0]) / cluster_s).astype(int)
-    bc = band_check(X, z, ok, block, float(inp.dt), [pos[int(q)] for q in idx], np.asarray(fit.theta, float)[idx], edges)
+    bc = band_check(X, z, ok, time_clusters(inp, cluster_s), float(inp.dt), [pos[int(q)] for q in idx], np.asarray(fit.theta, float)[idx], edges)
     if bc.dof < 1:
         return fit, {}
     tau2 = np.nan_to_num(bc.tau2)

@@ -128,7 +128,9 @@ def _refit(kind, sensor, phi0, mask, inp, y, fill_idx, row_w, taps, sig, th, max
     return phi, jac, hess, rr, n_data, sol.stats["num_steps"]
 
 
-def _scaled_inv(a: np.ndarray) -> np.ndarray:
+def scaled_inv(a: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse of a symmetric ``a`` after scaling it to unit diagonal (parameters of very
+    different units: seconds, metres, ppm), scaled back."""
     sc = np.sqrt(np.clip(np.abs(np.diag(a)), 1e-300, None))
     return np.linalg.pinv(a / sc[:, None] / sc[None, :]) / sc[:, None] / sc[None, :]
 
@@ -151,7 +153,7 @@ def block_sandwich_cov(jac: np.ndarray, rr: np.ndarray, hess: np.ndarray, row_bl
     d = np.sqrt(np.clip(np.abs(np.diag(h)), 1e-300, None))
     if not np.all(np.isfinite(h)) or np.linalg.eigvalsh(h / d[:, None] / d[None, :]).min() < -1e-9:
         h = jac.T @ jac
-    hi = _scaled_inv(h)
+    hi = scaled_inv(h)
     return hi @ meat @ hi
 
 
@@ -208,7 +210,7 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     ja = jac[:n3][:, active]
     n_eff = float(n_data)
     s2 = float(rr[:n3] @ rr[:n3]) / max(n_eff - active.sum(), 1.0)
-    cov = _scaled_inv(ja.T @ ja) * s2
+    cov = scaled_inv(ja.T @ ja) * s2
     se_m = np.zeros(len(phi))
     se_m[active] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     se = se_m.copy()

@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from jaxcal.diagnose import effects as E
-from jaxcal.diagnose.band_pool import pool_named
+from jaxcal.diagnose.band_pool import candidate_spread, pool_named, widen_information
 from jaxcal.diagnose.locate import breakdown
 from jaxcal.diagnose.offset import Offset, Start, baseline_resid, coarse_offset, edge_rows, theta_with_tau
 from jaxcal.diagnose.refit import RefitResult, refit
@@ -299,7 +299,9 @@ def detectability(kind: str, sd: SensorData, cfg: SelectConfig, level: float, of
                   sel: Selection, meas: E.Inputs | None = None) -> Detectability:
     """Stage 4: per candidate, relative to the baseline, the minimum detectable size (scaled by
     the attenuation of a pose-derived reference and the block-robust inflation when ``meas`` is
-    given), "not excited" and "not testable" warnings, and the confounded pairs.
+    given; for the effects of ``cfg.band_pool``, with the between-band variance that naming it
+    would add to its interval, :func:`~jaxcal.diagnose.band_pool.candidate_spread`), "not
+    excited" and "not testable" warnings, and the confounded pairs.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -326,9 +328,14 @@ def detectability(kind: str, sd: SensorData, cfg: SelectConfig, level: float, of
             infl = block_score_inflation(S, base, group_columns(kind, s, c), sel.cols, sel.th)
             F = F * (att / infl)[:, None] * (att / infl)[None, :]
             warnings += _attenuation_warnings(s, c, att, infl)
+        spread = candidate_spread(lin.x, lin.z, fit_rows, sd.inp, base, group_columns(kind, s, c)) if c in cfg.band_pool else None
+        if spread is not None:
+            F = widen_information(F, spread)
         comp, worst = minimum_detectable(F, level, cfg.power)
         mds[c] = {"components": comp.tolist(), "worst": worst, "min": float(comp.min()), "fisher": F.tolist(),
                   "lambda_star": detectable_noncentrality(level, F.shape[0], cfg.power)}
+        if spread is not None:
+            mds[c]["between_band_var"] = spread.tolist()
         if att is not None:
             mds[c]["attenuation"] = att.tolist()
             mds[c]["block_inflation"] = infl.tolist()
@@ -415,7 +422,8 @@ def _band_weak(s: str, final_all: RefitResult, info: dict, force: tuple[str, ...
 
 
 def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: Selection, det: Detectability,
-                 force: tuple[str, ...] = (), pool: tuple[str, ...] = (), level: float = 1.0) -> Named | DropOffset:
+                 force: tuple[str, ...] = (), pool: tuple[str, ...] = (), level: float = 1.0,
+                 huber: float | None = 3.0) -> Named | DropOffset:
     """Stage 5, the promise of the report: every named effect lowers the physical held-out rms that
     the report prints, step by step (one that does not is demoted to ``rejected`` with a warning that
     says where the residual lives), and no named estimate of the joint refit lies outside its
@@ -433,6 +441,8 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
             (:func:`~jaxcal.diagnose.band_pool.pool_named`); one that is then not significant at
             ``level`` is not named (a warning says the bands disagree).
         level: the test level of that check (Bonferroni).
+        huber: the joint refit's outlier threshold (:func:`~jaxcal.diagnose.refit.refit`); None:
+            plain least squares.
     """
     s, nb, fit_rows, tau_lin, unit = sd.sensor, E.N_BASE[kind], sel.fit_rows, off.tau_lin, UNIT_OF[sd.sensor]
     decisions = dict(det.decisions)
@@ -460,7 +470,7 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
             decisions[name] = _demote(decisions[name], why)
             warnings.append(warn)
             continue
-        final_all = _joint_refit(kind, sd, lin, sel, order, base_all)
+        final_all = _joint_refit(kind, sd, lin, sel, order, base_all, huber)
         bad = [(E.implausible(s, n, final_all.theta), n) for n in order if n not in force]
         bad = [b for b in bad if b[0] > 1.0]
         if bad:
@@ -489,7 +499,8 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         return Named(order, decisions, warnings, base_all, final_all, path, path_ols, bands or None)
 
 
-def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, order: list[str], base_all: RefitResult) -> RefitResult:
+def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, order: list[str], base_all: RefitResult,
+                 huber: float | None = 3.0) -> RefitResult:
     """The joint nonlinear refit of baseline + ``order`` from the linear step (a start far outside
     an effect's plausible range only misleads the solver: that effect starts from the linearisation
     point); the baseline alone when nothing is named."""
@@ -500,7 +511,7 @@ def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, ord
         if E.implausible(s, n, theta0) > 1.0:
             sl = E.slot(s, n)
             theta0[sl.start : sl.start + sl.size] = lin.theta_lin[sl.start : sl.start + sl.size]
-    return refit(kind, s, beta0, theta0, order, sd.inp, sd.y, sel.fit_rows, sel.ars, sd.block) if order else base_all
+    return refit(kind, s, beta0, theta0, order, sd.inp, sd.y, sel.fit_rows, sel.ars, sd.block, huber=huber) if order else base_all
 
 
 def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, start: Start = Start(),
@@ -523,7 +534,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     lin = linearise(kind, sd, off.tau_lin)
     sel = select_effects(kind, sd, cfg, level, off, lin, start, force)
     det = detectability(kind, sd, cfg, level, off, lin, sel, meas)
-    named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level)
+    named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level, cfg.huber)
     if isinstance(named, DropOffset):
         return named
     order, final_all, decisions = named.order, named.final_all, dict(named.decisions)
@@ -539,7 +550,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     frame_fit = final_all if order else None
     if kind == "affine" and not order:  # baseline standard errors for the rotation's interval
         base = named.base_all
-        frame_fit = refit(kind, sd.sensor, base.beta, base.theta, [], sd.inp, sd.y, sel.fit_rows, sel.ars, sd.block)
+        frame_fit = refit(kind, sd.sensor, base.beta, base.theta, [], sd.inp, sd.y, sel.fit_rows, sel.ars, sd.block, huber=cfg.huber)
     ars = sel.ars
     return SensorResult(
         sd.sensor, order, {k: v._asdict() for k, v in decisions.items()}, det.mds, off.warnings + det.warnings + named.warnings,

@@ -58,6 +58,12 @@ class SelectConfig(NamedTuple):
             motion effects, which unmodelled translational acceleration can move.
         exclude: effects not tested in this mode (``clock_skew`` against the IMU's own gyroscope,
             which shares the accelerometer's clock).
+        huber: outlier threshold (robust sd) of the joint refit's one Huber-reweighted pass
+            (:func:`jaxcal.diagnose.refit.refit`: mocap glitches, shocks); None: plain least squares.
+            The reference-free mode uses None: its heavy tails are the motion's own translational
+            acceleration, and one reweighting pass from a solve that can stop at its step cap is not
+            equivariant (measured on BROAD 07 20-50 s: a concealed 2.5 ms delay read 2.90 ms with
+            the pass, 2.47 ms without; ``results/field_diagnose.md``).
     """
 
     alpha: float = 0.05  # family-wise false-discovery level per recording (Bonferroni)
@@ -71,6 +77,7 @@ class SelectConfig(NamedTuple):
     random_walk: bool = True  # False: AR noise model only (rows that are separate rests)
     band_pool: tuple[str, ...] = ()  # effects whose intervals count their between-band variance
     exclude: tuple[str, ...] = ()  # effects not tested (without a reference: clock_skew, one clock)
+    huber: float | None = 3.0  # joint refit's Huber threshold (robust sd); None: plain least squares
 
 
 # ----------------------------------------------------------------------------- systems
