@@ -24,13 +24,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.refit import RefitResult
+from jaxcal.precision import float64
 
 __all__ = ["BAND_EDGES_HZ", "BandCheck", "band_pass", "band_estimates", "random_effects", "band_check", "pool_named"]
 
@@ -162,6 +162,7 @@ def _inflate(fit: RefitResult, idx: np.ndarray, se_new: np.ndarray) -> RefitResu
     return fit._replace(se_theta=se, cov=cov)
 
 
+@float64
 def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: RefitResult, order: list[str],
                pool: tuple[str, ...], edges: tuple[float, ...] = BAND_EDGES_HZ, cluster_s: float = 2.0) -> tuple[RefitResult, dict]:
     """Widen the intervals of the named effects in ``pool`` by their between-band variance.
@@ -193,8 +194,7 @@ def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: Ref
     names = [n for n in order if n in pool]
     if not names:
         return fit, {}
-    with jax.enable_x64(True):
-        jb, jt = E.regressors(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp))
+    jb, jt = E.regressors(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp))
     active = np.flatnonzero(E.effect_mask(sensor, order) > 0)
     X = np.concatenate([np.asarray(jb), np.asarray(jt)[:, :, active]], axis=2)
     z = np.asarray(fit.resid, float)
