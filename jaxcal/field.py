@@ -46,6 +46,7 @@ import numpy as np
 
 from jaxcal import multipos as mp
 from jaxcal.online import OnlineHP, SequenceBatch, make_filter, online_scan, to_linear_cal
+from jaxcal.precision import float64
 from jaxcal.sensor import Diag, LinearCal
 
 __all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "carried_sigma", "compose", "field_batch", "fit_field", "fold_fits", "rest_init", "sequence_weights"]
@@ -63,6 +64,7 @@ class FieldInit(NamedTuple):
     G: np.ndarray
 
 
+@float64
 def rest_init(data: mp.MultiposData, acc_w: np.ndarray | None = None, gyr_w: np.ndarray | None = None,
               config: mp.MultiposConfig = mp.MultiposConfig()) -> FieldInit:
     """The initial calibration from the data alone: the accelerometer from the rests' ``|f| = 1 g``,
@@ -78,14 +80,13 @@ def rest_init(data: mp.MultiposData, acc_w: np.ndarray | None = None, gyr_w: np.
     Returns:
         :class:`FieldInit` (numpy float64).
     """
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        P = d.pose_acc.shape[0]
-        aw = jnp.ones(P) if acc_w is None else jnp.asarray(acc_w, jnp.float64)
-        gw = jnp.ones(P - 1) if gyr_w is None else jnp.asarray(gyr_w, jnp.float64)
-        f = mp.fit_prepared_jit(d, config, acc_w=aw, gyr_w=gw)
-        return FieldInit(LinearCal(np.asarray(f.acc.A), np.asarray(f.acc.b)),
-                         LinearCal(np.asarray(f.gyr.A), np.asarray(f.gyr.b)), np.asarray(f.gsens))
+    d = jax.tree_util.tree_map(jnp.asarray, data)
+    P = d.pose_acc.shape[0]
+    aw = jnp.ones(P) if acc_w is None else jnp.asarray(acc_w, jnp.float64)
+    gw = jnp.ones(P - 1) if gyr_w is None else jnp.asarray(gyr_w, jnp.float64)
+    f = mp.fit_prepared_jit(d, config, acc_w=aw, gyr_w=gw)
+    return FieldInit(LinearCal(np.asarray(f.acc.A), np.asarray(f.acc.b)),
+                     LinearCal(np.asarray(f.gyr.A), np.asarray(f.gyr.b)), np.asarray(f.gsens))
 
 
 class FieldBatch(NamedTuple):
@@ -156,15 +157,15 @@ def compose(outer: LinearCal, inner: LinearCal) -> LinearCal:
     return LinearCal(A_o @ A_i, b_i + np.linalg.solve(A_i, b_o))
 
 
+@float64
 def carried_sigma(init: FieldInit, data: mp.MultiposData, motion_w: np.ndarray) -> float:
     """Per-component std (rad) of the gravity direction that ``init``'s gyroscope carries from one
     rest to the next, from its angles on the motions of weight 1: ``sqrt(mean(angle^2) / 2)``
     (two tangential components). On real motions this is the dominant error of a carried
     direction (Xsens: ~0.5 deg, against ~0.002 deg of accelerometer noise in a rest's mean)."""
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        a, g = (LinearCal(jnp.asarray(c.A, jnp.float64), jnp.asarray(c.b, jnp.float64)) for c in init[:2])
-        ang = np.asarray(mp.gyro_angle_errors(g, jnp.asarray(init.G, jnp.float64), a, d))
+    d = jax.tree_util.tree_map(jnp.asarray, data)
+    a, g = (LinearCal(jnp.asarray(c.A, jnp.float64), jnp.asarray(c.b, jnp.float64)) for c in init[:2])
+    ang = np.asarray(mp.gyro_angle_errors(g, jnp.asarray(init.G, jnp.float64), a, d))
     ok = (np.asarray(motion_w) > 0) & np.asarray(data.seg_ok, bool) & np.isfinite(ang)
     return float(np.sqrt(np.mean(ang[ok] ** 2) / 2.0)) if ok.any() else 0.0
 
@@ -192,6 +193,7 @@ def sequence_weights(batch: FieldBatch, seq_w: np.ndarray, residuals: str, sigma
     return w * on[:, None], wt * on[:, None]
 
 
+@float64
 def fit_field(batch: FieldBatch, init: FieldInit, dt: float, hp: OnlineHP, kind: str = "diag",
               residuals: str = "rests", seq_w: np.ndarray | None = None,
               sigma_dir: float = 0.0) -> FieldInit:
@@ -220,10 +222,9 @@ def fit_field(batch: FieldBatch, init: FieldInit, dt: float, hp: OnlineHP, kind:
         :class:`FieldInit`: the final calibration (``G`` carried through the gyroscope's correction).
     """
     ua, ug, w, wt = _inputs(batch, init, hp, residuals, seq_w, sigma_dir)
-    with jax.enable_x64(True):
-        theta = _pass_jit(*(jnp.asarray(x, jnp.float64) for x in (ua, ug, batch.mask, w, wt)), jnp.asarray(dt, jnp.float64),
-                          OnlineHP(*[jnp.asarray(v) for v in hp]), kind)
-        return _result(theta, init, kind)
+    theta = _pass_jit(*(jnp.asarray(x, jnp.float64) for x in (ua, ug, batch.mask, w, wt)), jnp.asarray(dt, jnp.float64),
+                      OnlineHP(*[jnp.asarray(v) for v in hp]), kind)
+    return _result(theta, init, kind)
 
 
 def _inputs(batch: FieldBatch, init: FieldInit, hp: OnlineHP, residuals: str, seq_w: np.ndarray | None,
@@ -278,6 +279,7 @@ class FoldFits(NamedTuple):
     determined: np.ndarray
 
 
+@float64
 def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP, n_folds: int, kind: str = "diag",
               residuals: str = "rests", config: mp.MultiposConfig = mp.MultiposConfig(),
               whole: FieldInit | None = None) -> FoldFits:
@@ -315,10 +317,9 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
         n_seq.append(int(mw.sum()))
     # one fold after another: a vmap over the folds ran 2x slower on 2 CPU cores (61.6 s against
     # 30.9 s on the Xsens session, the same load), as multipos's folds (multipos.heldout.fold_batch)
-    with jax.enable_x64(True):
-        mask, dt64 = jnp.asarray(batch.mask, jnp.float64), jnp.asarray(dt, jnp.float64)
-        hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
-        finals = [_result(_pass_jit(*(jnp.asarray(x, jnp.float64) for x in (ua, ug)), mask,
-                                    *(jnp.asarray(x, jnp.float64) for x in (w, wt)), dt64, hp64, kind), init, kind)
-                  for (ua, ug, w, wt), init in zip(ins, inits)]
+    mask, dt64 = jnp.asarray(batch.mask, jnp.float64), jnp.asarray(dt, jnp.float64)
+    hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
+    finals = [_result(_pass_jit(*(jnp.asarray(x, jnp.float64) for x in (ua, ug)), mask,
+                                *(jnp.asarray(x, jnp.float64) for x in (w, wt)), dt64, hp64, kind), init, kind)
+              for (ua, ug, w, wt), init in zip(ins, inits)]
     return FoldFits(pf, inits, finals, np.asarray(n_seq), np.asarray(det, bool))

@@ -24,6 +24,7 @@ import numpy as np
 from jaxtyping import Float
 
 from jaxcal.arrays import Array
+from jaxcal.precision import float64
 
 __all__ = [
     "StaticDetection",
@@ -101,6 +102,7 @@ def intervals_from_mask(mask: np.ndarray, min_samples: int) -> np.ndarray:
     return np.stack([starts[keep], stops[keep]], axis=1).astype(np.int64).reshape(-1, 2)
 
 
+@float64
 def detect_static(
     t: np.ndarray,
     acc: np.ndarray,
@@ -143,9 +145,8 @@ def detect_static(
     t = np.asarray(t, np.float64)
     dt = float(np.median(np.diff(t)))
     half = max(1, int(round(0.5 * window / dt)))
-    with jax.enable_x64(True):
-        a = jnp.asarray(np.asarray(acc, np.float64))
-        var = np.asarray(moving_variance(a, half))
+    a = jnp.asarray(np.asarray(acc, np.float64))
+    var = np.asarray(moving_variance(a, half))
     var_mag = np.linalg.norm(var, axis=1)
     n_init = int(np.searchsorted(t, t[0] + init_duration))
     if n_init < 2 * half + 1:
@@ -164,8 +165,7 @@ def detect_static(
             b = rest_gyr_baseline(g, np.asarray(acc, np.float64), still, gyr_k * max(sigma, 1e-12))
         else:
             b = np.median(g[still], axis=0)
-        with jax.enable_x64(True):
-            dev = np.asarray(moving_mean(jnp.asarray(np.linalg.norm(g - b, axis=1)), half))
+        dev = np.asarray(moving_mean(jnp.asarray(np.linalg.norm(g - b, axis=1)), half))
         mask &= dev < gyr_k * max(sigma, 1e-12)
     iv = intervals_from_mask(mask, max(1, int(round(min_duration / dt))))
     return StaticDetection(iv, var_mag, threshold, float(k))

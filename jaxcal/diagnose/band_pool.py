@@ -24,13 +24,13 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.refit import RefitResult, scaled_inv
+from jaxcal.precision import float64
 
 __all__ = ["BAND_EDGES_HZ", "BandCheck", "band_pass", "band_estimates", "random_effects", "band_check", "time_clusters",
            "candidate_spread", "widen_information", "pool_named"]
@@ -194,6 +194,7 @@ def widen_information(F: np.ndarray, tau2: np.ndarray) -> np.ndarray:
     return scaled_inv(scaled_inv(F) + np.diag(tau2))
 
 
+@float64
 def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: RefitResult, order: list[str],
                pool: tuple[str, ...], edges: tuple[float, ...] = BAND_EDGES_HZ, cluster_s: float = 2.0) -> tuple[RefitResult, dict]:
     """Widen the intervals of the named effects in ``pool`` by their between-band variance.
@@ -225,8 +226,7 @@ def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: Ref
     names = [n for n in order if n in pool]
     if not names:
         return fit, {}
-    with jax.enable_x64(True):
-        jb, jt = E.regressors(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp))
+    jb, jt = E.regressors(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp))
     active = np.flatnonzero(E.effect_mask(sensor, order) > 0)
     X = np.concatenate([np.asarray(jb), np.asarray(jt)[:, :, active]], axis=2)
     z = np.asarray(fit.resid, float)

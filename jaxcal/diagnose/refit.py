@@ -39,6 +39,7 @@ import optimistix as optx
 
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.whiten import ARModel, fill_index, gap_ok, local_level_gains
+from jaxcal.precision import float64
 
 __all__ = [
     "MAX_TAPS",
@@ -157,6 +158,7 @@ def block_sandwich_cov(jac: np.ndarray, rr: np.ndarray, hess: np.ndarray, row_bl
     return hi @ meat @ hi
 
 
+@float64
 def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs, y: np.ndarray, rows: np.ndarray,
           ars: list[ARModel], block: np.ndarray | None = None, max_steps: int = 128, huber: float | None = 3.0) -> RefitResult:
     """Fit baseline + effects ``names`` jointly on ``rows`` from ``(beta0, theta0)``.
@@ -184,27 +186,26 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
     taps, sig, th = whitening_filters(ars, len(y))
     row_w = np.stack([gap_ok(rows, ar.memory) for ar in ars], 1).astype(np.float64)
     nb = E.N_BASE[kind]
-    with jax.enable_x64(True):
-        jinp = E.as_jax(inp)
-        phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
-        args = (jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64), jnp.asarray(fill_index(rows)))
-        filt = (jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(a) for a in th))
-        phi, jac, hess, rr, n_data, n_steps = _refit(kind, sensor, phi0, *args, jnp.asarray(row_w), *filt, max_steps=max_steps)
-        n_down = 0
-        if huber is not None:
-            # one iteratively-reweighted pass: whitened rows beyond huber x robust sd get Huber weights
-            u = np.asarray(rr)[: 3 * len(y)].reshape(len(y), 3)
-            on = row_w > 0
-            sd = 1.4826 * float(np.median(np.abs(u[on]))) if on.any() else 0.0
-            if sd > 0:
-                w = np.minimum(1.0, huber * sd / np.maximum(np.abs(u), 1e-300))
-                n_down = int(np.sum(on & (w < 1.0)))
-                if n_down:
-                    phi, jac, hess, rr, n_data, n_steps = _refit(kind, sensor, phi, *args, jnp.asarray(row_w * np.sqrt(w)), *filt,
-                                                                 max_steps=max_steps)
-        phi, jac, hess, rr = (np.asarray(a) for a in (phi, jac, hess, rr))
-        beta, theta = phi[:nb], phi[nb:] * mask
-        resid = np.asarray(y - E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(theta), jinp))
+    jinp = E.as_jax(inp)
+    phi0 = jnp.asarray(np.concatenate([beta0, np.asarray(theta0) * mask]), jnp.float64)
+    args = (jnp.asarray(mask), jinp, jnp.asarray(y, jnp.float64), jnp.asarray(fill_index(rows)))
+    filt = (jnp.asarray(taps), jnp.asarray(sig), tuple(jnp.asarray(a) for a in th))
+    phi, jac, hess, rr, n_data, n_steps = _refit(kind, sensor, phi0, *args, jnp.asarray(row_w), *filt, max_steps=max_steps)
+    n_down = 0
+    if huber is not None:
+        # one iteratively-reweighted pass: whitened rows beyond huber x robust sd get Huber weights
+        u = np.asarray(rr)[: 3 * len(y)].reshape(len(y), 3)
+        on = row_w > 0
+        sd = 1.4826 * float(np.median(np.abs(u[on]))) if on.any() else 0.0
+        if sd > 0:
+            w = np.minimum(1.0, huber * sd / np.maximum(np.abs(u), 1e-300))
+            n_down = int(np.sum(on & (w < 1.0)))
+            if n_down:
+                phi, jac, hess, rr, n_data, n_steps = _refit(kind, sensor, phi, *args, jnp.asarray(row_w * np.sqrt(w)), *filt,
+                                                             max_steps=max_steps)
+    phi, jac, hess, rr = (np.asarray(a) for a in (phi, jac, hess, rr))
+    beta, theta = phi[:nb], phi[nb:] * mask
+    resid = np.asarray(y - E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(theta), jinp))
     n3 = 3 * len(y)
     active = np.concatenate([np.ones(nb, bool), mask > 0])
     ja = jac[:n3][:, active]

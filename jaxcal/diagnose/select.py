@@ -36,6 +36,7 @@ from scipy import optimize, stats
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.system import SelectConfig, SensorData, System, _solve, build_system, rss
 from jaxcal.diagnose.whiten import ARModel, apply_filter, fill_index, gap_ok
+from jaxcal.precision import float64
 
 __all__ = [
     "SensorData",
@@ -77,6 +78,7 @@ def _linearize(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
     return jb, jt, z
 
 
+@float64
 def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
     """``(X (N, 3, B+P), z (N, 3))``: regressors [baseline | effects] and residual at (beta, theta).
 
@@ -86,10 +88,9 @@ def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
         beta: (B,) baseline parameters.
         theta: (P,) effect parameters (:data:`~jaxcal.diagnose.effects.LAYOUT`).
     """
-    with jax.enable_x64(True):
-        inp = E.as_jax(sd.inp)
-        jb, jt, z = _linearize(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
-        return np.concatenate([np.asarray(jb), np.asarray(jt)], axis=2), np.asarray(z)
+    inp = E.as_jax(sd.inp)
+    jb, jt, z = _linearize(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
+    return np.concatenate([np.asarray(jb), np.asarray(jt)], axis=2), np.asarray(z)
 
 
 @partial(jax.jit, static_argnames=("kind", "sensor"))
@@ -99,6 +100,7 @@ def _linearize_base(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
     return jb, y - E.baseline_apply(kind, beta, u)
 
 
+@float64
 def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
     """Like :func:`linearize` but only the baseline columns ``(X (N, 3, B), z (N, 3))``.
 
@@ -108,10 +110,9 @@ def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.nd
         beta: (B,) baseline parameters.
         theta: (P,) effect parameters, held fixed.
     """
-    with jax.enable_x64(True):
-        inp = E.as_jax(sd.inp)
-        jb, z = _linearize_base(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
-        return np.asarray(jb), np.asarray(z)
+    inp = E.as_jax(sd.inp)
+    jb, z = _linearize_base(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
+    return np.asarray(jb), np.asarray(z)
 
 
 def fit_baseline(kind: str, sd: SensorData, rows: np.ndarray) -> np.ndarray:

@@ -53,6 +53,7 @@ from jaxcal.diagnose.conceal import (
     conceal_shift,
     effect_at_mds,
 )
+from jaxcal.precision import float64
 from jaxcal.recording import Recording
 
 __all__ = [
@@ -91,10 +92,10 @@ GT_MAX_GAP = 0.05  # s: a gap in a ``gt_t`` track longer than this is a referenc
 # ----------------------------------------------------------------------------- rotations (jaxcal.rotation, float64)
 
 
+@float64
 def _f64(fn, *args) -> np.ndarray:
     """``fn(*args)`` of :mod:`jaxcal.rotation` in float64, as a numpy array."""
-    with jax.enable_x64(True):
-        return np.array(fn(*[jax.numpy.asarray(np.asarray(a, np.float64)) for a in args]))
+    return np.array(fn(*[jax.numpy.asarray(np.asarray(a, np.float64)) for a in args]))
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -13,12 +13,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcal import multipos as mp
+from jaxcal.precision import float64
 from jaxcal.rotation import log_so3
 from jaxcal.sensor import LinearCal
 
 __all__ = ["carried_rotation", "rotation_check", "loop_closure_deg", "static_norm_error_mg"]
 
 
+@float64
 def carried_rotation(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, gyr_A, bias, rest: int, block: int) -> np.ndarray:
     """Rotation (3, 3) carried by the calibrated gyro ``w = A (y - bias)`` from the first ``rest``
     samples to the last ``rest`` samples (physical convention, float64).
@@ -32,15 +34,14 @@ def carried_rotation(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, gyr_A, bia
     """
     iv = np.array([[0, rest], [len(t) - rest, len(t)]])
     d = mp.prepare(t, acc, gyr, iv, block=block)
-    with jax.enable_x64(True):
-        dj = jax.tree_util.tree_map(jnp.asarray, d)
-        rv = mp.block_rotvecs(jnp.asarray(gyr_A), jnp.asarray(bias, jnp.float64), jnp.zeros((3, 3)), dj, jnp.zeros_like(dj.sy))
-        return np.asarray(mp.carry_rotation(rv, jnp.ones_like(dj.sdt)))[0]
+    dj = jax.tree_util.tree_map(jnp.asarray, d)
+    rv = mp.block_rotvecs(jnp.asarray(gyr_A), jnp.asarray(bias, jnp.float64), jnp.zeros((3, 3)), dj, jnp.zeros_like(dj.sy))
+    return np.asarray(mp.carry_rotation(rv, jnp.ones_like(dj.sdt)))[0]
 
 
+@float64
 def _rotvec(rot: np.ndarray) -> np.ndarray:
-    with jax.enable_x64(True):
-        return np.asarray(log_so3(jnp.asarray(rot)))
+    return np.asarray(log_so3(jnp.asarray(rot)))
 
 
 def static_norm_error_mg(acc_cal: LinearCal, acc: np.ndarray) -> float:

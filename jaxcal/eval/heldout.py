@@ -18,6 +18,7 @@ import numpy as np
 from jaxcal import multipos as mp
 from jaxcal import online as onl
 from jaxcal.eval.scores import score_cal, summarise
+from jaxcal.precision import float64
 from jaxcal.sensor import Diag, LinearCal
 
 __all__ = ["stream_segments", "fold_errors", "online_fit", "online_heldout", "fair_data", "fair_multipos", "fixed_errors"]
@@ -137,6 +138,7 @@ def fair_data(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, plan: mp.TimeSpli
     return fit_d, score_d, known, turns
 
 
+@float64
 def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.MultiposConfig, mode: str,
                   motions: bool = True) -> tuple:
     """Held-out errors ``(acc_err, gyr_err, turn_err)`` of jaxcal multipos on one time fold.
@@ -161,20 +163,19 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
     if not motions:  # one fit on every turn and no motion holds out every motion at once
         gw, kw = np.zeros((1, gw.shape[1])), np.ones((1, kw.shape[1]))
     aw = plan.is_face.astype(float)
-    with jax.enable_x64(True):
-        d, sd, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (fit_d, score_d, known, turns))
+    d, sd, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (fit_d, score_d, known, turns))
 
-        @jax.jit
-        def run(gw, kw):
-            def one(g, k):
-                f = mp.fit_prepared(d, config, acc_w=jnp.asarray(aw), gyr_w=g,
-                                    known=kn if mode == "closed" else None, known_w=k,
-                                    turns=tv if mode == "vertical" else None, turns_w=k)
-                return (mp.acc_norm_errors(f.acc, sd.pose_acc), mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, sd),
-                        mp.known_rotation_errors(f.gyr, f.gsens, f.acc, kn))
-            return jax.vmap(one)(gw, kw)
+    @jax.jit
+    def run(gw, kw):
+        def one(g, k):
+            f = mp.fit_prepared(d, config, acc_w=jnp.asarray(aw), gyr_w=g,
+                                known=kn if mode == "closed" else None, known_w=k,
+                                turns=tv if mode == "vertical" else None, turns_w=k)
+            return (mp.acc_norm_errors(f.acc, sd.pose_acc), mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, sd),
+                    mp.known_rotation_errors(f.gyr, f.gsens, f.acc, kn))
+        return jax.vmap(one)(gw, kw)
 
-        ea, eg, ek = (np.asarray(x) for x in run(jnp.asarray(gw), jnp.asarray(kw)))
+    ea, eg, ek = (np.asarray(x) for x in run(jnp.asarray(gw), jnp.asarray(kw)))
     eg_out = np.full(len(plan.spans), np.nan)
     if not motions:
         eg_out[scored[:M]] = eg[0, scored[:M]]
@@ -184,6 +185,7 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
     return ea[0][plan.is_face], eg_out, ek[M + np.arange(K), np.arange(K)]
 
 
+@float64
 def fixed_errors(a_cal: LinearCal, g_cal: LinearCal, score_d, known, plan: mp.TimeSplit) -> tuple:
     """Errors ``(acc_err, gyr_err, turn_err)`` of a given calibration on a fold's scored sections:
     faces (acc), motions between poses (gyro; NaN for spans across a turn) and the turns' closure.
@@ -195,7 +197,6 @@ def fixed_errors(a_cal: LinearCal, g_cal: LinearCal, score_d, known, plan: mp.Ti
         plan: the fold (:func:`jaxcal.multipos.time_split`).
     """
     ea, eg = score_cal(a_cal, g_cal, score_d)
-    with jax.enable_x64(True):
-        ek = np.asarray(mp.known_rotation_errors(jax.tree_util.tree_map(jnp.asarray, g_cal), jnp.zeros((3, 3)),
-                                                 jax.tree_util.tree_map(jnp.asarray, a_cal), jax.tree_util.tree_map(jnp.asarray, known)))
+    ek = np.asarray(mp.known_rotation_errors(jax.tree_util.tree_map(jnp.asarray, g_cal), jnp.zeros((3, 3)),
+                                             jax.tree_util.tree_map(jnp.asarray, a_cal), jax.tree_util.tree_map(jnp.asarray, known)))
     return ea[plan.is_face], np.where(plan.across_turn, np.nan, eg), ek

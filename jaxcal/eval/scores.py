@@ -26,6 +26,7 @@ import numpy as np
 
 from jaxcal import compare
 from jaxcal import multipos as mp
+from jaxcal.precision import float64
 from jaxcal.sensor import LinearCal
 
 __all__ = ["QualityRow", "quality_row", "summarise", "score_cal", "score_fixed", "score_heldout", "score_insample", "fair_row", "paired_with_peer",
@@ -99,6 +100,7 @@ def summarise(ea: np.ndarray, eg: np.ndarray, scored: str) -> dict:
     }
 
 
+@float64
 def score_cal(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData,
               G: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-pose ``|f|`` errors and per-transition carried-gravity angles (NaN where ``data.seg_ok`` is
@@ -111,13 +113,12 @@ def score_cal(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData,
         G: (3, 3) the gyroscope's g-sensitivity ((rad/s)/g: ``w = A_g (y_g - b_g) - G f``, ``f``
             the calibrated accelerometer); ``None``: zero.
     """
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        a = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), acc)
-        g = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), gyr)
-        gs = jnp.zeros((3, 3)) if G is None else jnp.asarray(G, jnp.float64)
-        ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
-        eg = np.asarray(mp.gyro_angle_errors(g, gs, a, d))
+    d = jax.tree_util.tree_map(jnp.asarray, data)
+    a = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), acc)
+    g = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), gyr)
+    gs = jnp.zeros((3, 3)) if G is None else jnp.asarray(G, jnp.float64)
+    ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
+    eg = np.asarray(mp.gyro_angle_errors(g, gs, a, d))
     return ea, np.where(np.asarray(data.seg_ok, bool), eg, np.nan)
 
 
@@ -143,6 +144,7 @@ def score_heldout(data: mp.MultiposData, config: mp.MultiposConfig, n_folds: int
     return summarise(h.acc_err, h.gyr_err, f"held out ({'leave-one-pose-out' if n_folds is None else f'{n_folds} interleaved folds'})")
 
 
+@float64
 def score_insample(data: mp.MultiposData, config: mp.MultiposConfig) -> dict:
     """The row of multipos fitted on every pose and scored on the same poses (labelled IN-SAMPLE).
 
@@ -150,11 +152,10 @@ def score_insample(data: mp.MultiposData, config: mp.MultiposConfig) -> dict:
         data: prepared poses and transitions (numpy, :func:`jaxcal.multipos.prepare`).
         config: :class:`~jaxcal.multipos.MultiposConfig` (static: a new config recompiles).
     """
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        fit = mp.fit_prepared_jit(d, config)
-        ea = np.asarray(mp.acc_norm_errors(fit.acc, d.pose_acc))
-        eg = np.asarray(mp.gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))
+    d = jax.tree_util.tree_map(jnp.asarray, data)
+    fit = mp.fit_prepared_jit(d, config)
+    ea = np.asarray(mp.acc_norm_errors(fit.acc, d.pose_acc))
+    eg = np.asarray(mp.gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))
     return summarise(ea, np.where(np.asarray(data.seg_ok), eg, np.nan), "IN-SAMPLE (fitted on all poses)")
 
 

@@ -22,7 +22,6 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-import jax
 import numpy as np
 from jaxtyping import Float
 
@@ -30,7 +29,7 @@ from jaxcal import methods
 from jaxcal.arrays import Array
 from jaxcal.constants import G0, PHYS_UNIT
 from jaxcal.methods import CalibrationModel, ModelError
-from jaxcal.methods.base import GSENS_KEY, MAX_CONDITION, affine_state, apply_linear_state, check_linear_state, gsens_of
+from jaxcal.methods.base import GSENS_KEY, MAX_CONDITION, apply_linear_state, check_linear_state, gsens_of, linear_cal_of_state
 from jaxcal.sensor import LinearCal
 
 __all__ = [
@@ -76,7 +75,7 @@ def linear_cals(model: CalibrationModel) -> dict[str, LinearCal]:
     """``sensor -> LinearCal`` (numpy float64 ``A``, ``b``) of a linear model, in ``model.sensors`` order.
 
     ``A = S^{-1}`` is computed exactly as ``jaxcal apply`` computes it
-    (:meth:`~jaxcal.sensor.LinearCal.from_forward` of :func:`~jaxcal.methods.base.affine_state`, float64).
+    (:func:`~jaxcal.methods.base.linear_cal_of_state`, float64).
 
     Args:
         model: a fitted or loaded :class:`~jaxcal.methods.CalibrationModel`.
@@ -89,12 +88,7 @@ def linear_cals(model: CalibrationModel) -> dict[str, LinearCal]:
             f"model of method '{model.method}' is not linear: jaxcal's exports hold one affine "
             f"calibration {EQUATION} per sensor, which only the methods {', '.join(linear_methods())} fit"
         )
-    out = {}
-    with jax.enable_x64(True):
-        for s in model.sensors:
-            cal = LinearCal.from_forward(affine_state(model.state[s]))
-            out[s] = LinearCal(np.asarray(cal.A, np.float64), np.asarray(cal.b, np.float64))
-    return out
+    return {s: linear_cal_of_state(model.state[s]) for s in model.sensors}
 
 
 def g_sensitivity(model: CalibrationModel) -> np.ndarray | None:

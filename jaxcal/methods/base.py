@@ -27,13 +27,13 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxcal import flags
 from jaxcal.constants import PHYS_UNIT, SENSORS
 from jaxcal.flags import Flag
+from jaxcal.precision import float64
 from jaxcal.recording import Recording, sequence_slices
 from jaxcal.sensor import Affine, Diag, LinearCal, spec_diag
 from jaxcal.sequences import sequence_bounds
@@ -60,6 +60,7 @@ __all__ = [
     "gsens_of",
     "holdout_mask",
     "labelled_sensors",
+    "linear_cal_of_state",
     "linear_state",
     "recording_dt",
     "recording_spec",
@@ -184,6 +185,7 @@ def recording_spec(rec: Recording, sensor: str) -> Diag | None:
     return spec_diag(np.asarray(scale, np.float32), np.asarray(0.0 if bias is None else bias, np.float32))
 
 
+@float64
 def datasheet_cals(rec: Recording) -> tuple[LinearCal, LinearCal] | None:
     """The datasheet conversion of both sensors (:func:`recording_spec`) as numpy float64
     :class:`~jaxcal.sensor.LinearCal` pair (the starting point of the ``seq`` methods), or ``None``
@@ -191,10 +193,9 @@ def datasheet_cals(rec: Recording) -> tuple[LinearCal, LinearCal] | None:
     specs = [recording_spec(rec, s) for s in SENSORS]
     if any(sp is None for sp in specs):
         return None
-    with jax.enable_x64(True):
-        cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
-                     for sp in specs)
-        return tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
+    cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
+                 for sp in specs)
+    return tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
 
 
 def recording_dt(rec: Recording) -> float:
@@ -385,18 +386,31 @@ GSENS_KEY = "G"
 MAX_CONDITION = 1e10  # a calibration matrix worse conditioned than this is singular for our purposes
 
 
+@float64
 def linear_state(cal: LinearCal) -> Affine:
     """The state a linear calibration is stored as: its forward model ``y = S x + b`` (numpy
     float64, ``S = A^{-1}``), written as ``state/<sensor>/S`` and ``state/<sensor>/b``."""
-    with jax.enable_x64(True):
-        fwd = LinearCal(jnp.asarray(cal.A, jnp.float64), jnp.asarray(cal.b, jnp.float64)).to_forward()
-        return Affine(np.asarray(fwd.S), np.asarray(fwd.b))
+    fwd = LinearCal(jnp.asarray(cal.A, jnp.float64), jnp.asarray(cal.b, jnp.float64)).to_forward()
+    return Affine(np.asarray(fwd.S), np.asarray(fwd.b))
 
 
 def affine_state(p: Mapping[str, Any]) -> Affine:
     """A stored linear state (``{"S": (3, 3), "b": (3,)}``) as a float64 :class:`~jaxcal.sensor.Affine`.
-    Call under ``jax.enable_x64``."""
+    Call inside a :func:`~jaxcal.precision.float64` entry point."""
     return Affine(*(jnp.asarray(p[k], jnp.float64) for k in Affine._fields))
+
+
+@float64
+def linear_cal_of_state(p: Mapping[str, Any]) -> LinearCal:
+    """A stored linear state's applied calibration ``x = A (y - b)`` (numpy float64), ``A = S^{-1}``
+    computed exactly as :func:`apply_linear_state` computes it
+    (:meth:`~jaxcal.sensor.LinearCal.from_forward` of :func:`affine_state`).
+
+    Args:
+        p: ``{"S": (3, 3), "b": (3,)}``.
+    """
+    cal = LinearCal.from_forward(affine_state(p))
+    return LinearCal(np.asarray(cal.A, np.float64), np.asarray(cal.b, np.float64))
 
 
 def check_linear_state(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str, ...]) -> None:
@@ -446,6 +460,7 @@ def gsens_of(state: Mapping[str, Any]) -> np.ndarray | None:
     return None
 
 
+@float64
 def apply_linear_state(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> dict[str, np.ndarray]:
     """:data:`ApplyFn` of the linear methods: ``x = A (y - b)`` with
     ``A = S^{-1}`` (:meth:`~jaxcal.sensor.LinearCal.from_forward`, eq. 3.5), in float64. A gyroscope
@@ -463,21 +478,20 @@ def apply_linear_state(state: Mapping[str, Any], meta: Mapping[str, Any], rec: R
         ModelError: the model has ``G`` and the recording (or the model) has no accelerometer.
     """
     out = {}
-    with jax.enable_x64(True):
-        for s in SENSORS:
-            p = state.get(s)
-            y = getattr(rec, s)
-            if p is None or y is None:
-                continue
-            cal = LinearCal.from_forward(affine_state(p))
-            out[f"{s}_cal"] = np.asarray(cal.apply(jnp.asarray(y, jnp.float64)))
-        G = gsens_of(state)
-        if G is not None and "gyr_cal" in out:
-            if rec.acc is None:
-                raise ModelError("the gyroscope's g-sensitivity (state/gyr/G) needs the recording's 'acc' channel, "
-                                 "which this recording lacks")
-            if "acc_cal" not in out:
-                raise ModelError("the gyroscope's g-sensitivity (state/gyr/G) needs the model's 'acc' calibration, "
-                                 "which it lacks")
-            out["gyr_cal"] = out["gyr_cal"] - out["acc_cal"] @ G.T
+    for s in SENSORS:
+        p = state.get(s)
+        y = getattr(rec, s)
+        if p is None or y is None:
+            continue
+        cal = LinearCal.from_forward(affine_state(p))
+        out[f"{s}_cal"] = np.asarray(cal.apply(jnp.asarray(y, jnp.float64)))
+    G = gsens_of(state)
+    if G is not None and "gyr_cal" in out:
+        if rec.acc is None:
+            raise ModelError("the gyroscope's g-sensitivity (state/gyr/G) needs the recording's 'acc' channel, "
+                             "which this recording lacks")
+        if "acc_cal" not in out:
+            raise ModelError("the gyroscope's g-sensitivity (state/gyr/G) needs the model's 'acc' calibration, "
+                             "which it lacks")
+        out["gyr_cal"] = out["gyr_cal"] - out["acc_cal"] @ G.T
     return out

@@ -14,7 +14,6 @@ import time
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -25,6 +24,7 @@ from jaxcal.methods.base import REF_KEY, SHARED_FLAGS, Fitted, Log, Method, Mode
 from jaxcal.methods.quality import refit_quality
 from jaxcal.normalise import Bounds
 from jaxcal.polynomial import CubicCal, cubic_calibrate, degree_of, fit_cubic, n_monomials, n_params
+from jaxcal.precision import float64
 from jaxcal.recording import Recording
 
 __all__ = ["METHOD", "CubicOptions", "apply", "check", "fit"]
@@ -53,6 +53,7 @@ class CubicOptions(NamedTuple):
     }
 
 
+@float64
 def fit(rec: Recording, options: CubicOptions, log: Log) -> Fitted:
     """Fit ``x = f(y)`` per labelled sensor in float64.
 
@@ -75,12 +76,12 @@ def fit(rec: Recording, options: CubicOptions, log: Log) -> Fitted:
         x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
         log(f"fitting cubic ({s}), degree {degree} ({n_params(degree)} parameters), on {rec.n} samples ...")
         t0 = time.perf_counter()
-        with jax.enable_x64(True):  # LSB ~ 1e4 with sub-mg floors: fit in float64
-            model = fit_cubic(jnp.asarray(y), jnp.asarray(x), None, degree, ridge)
-            model = CubicCal(np.asarray(model.coef), Bounds(np.asarray(model.bounds.lo), np.asarray(model.bounds.hi)))
-            if not np.all(np.isfinite(model.coef)):
-                raise ModelError(f"cubic fit of '{s}' failed (non-finite coefficients)")
-            x_hat = np.asarray(cubic_calibrate(model, jnp.asarray(y)))
+        # LSB ~ 1e4 with sub-mg floors: fit in float64
+        model = fit_cubic(jnp.asarray(y), jnp.asarray(x), None, degree, ridge)
+        model = CubicCal(np.asarray(model.coef), Bounds(np.asarray(model.bounds.lo), np.asarray(model.bounds.hi)))
+        if not np.all(np.isfinite(model.coef)):
+            raise ModelError(f"cubic fit of '{s}' failed (non-finite coefficients)")
+        x_hat = np.asarray(cubic_calibrate(model, jnp.asarray(y)))
         state[s] = model
         meta["train_rms"][s] = rms(x_hat - x)
         log(f"fitting cubic ({s}) ... done in {time.perf_counter() - t0:.1f} s, "
@@ -123,6 +124,7 @@ def check(state: Mapping[str, Any], meta: Mapping[str, Any], sensors: tuple[str,
             raise ModelError(f"state of '{s}' has non-finite values or an empty normalisation range")
 
 
+@float64
 def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> dict[str, np.ndarray]:
     """Calibrate with the stored polynomials, in float64.
 
@@ -132,11 +134,10 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
         rec: the recording to calibrate.
     """
     out = {}
-    with jax.enable_x64(True):
-        for s, p in state.items():
-            y = getattr(rec, s)
-            if y is not None:
-                out[f"{s}_cal"] = np.asarray(cubic_calibrate(_cubic_state(p), jnp.asarray(y, jnp.float64)))
+    for s, p in state.items():
+        y = getattr(rec, s)
+        if y is not None:
+            out[f"{s}_cal"] = np.asarray(cubic_calibrate(_cubic_state(p), jnp.asarray(y, jnp.float64)))
     return out
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import time
 from typing import Any, NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -27,6 +26,7 @@ from jaxcal.methods.base import (
     units,
 )
 from jaxcal.methods.quality import refit_quality
+from jaxcal.precision import float64
 from jaxcal.recording import Recording
 from jaxcal.sensor import Affine, LinearCal
 
@@ -45,6 +45,7 @@ class LinearOptions(NamedTuple):
     FLAGS = {"sensors": SHARED_FLAGS["sensors"]}
 
 
+@float64
 def fit(rec: Recording, options: LinearOptions, log: Log) -> Fitted:
     """Fit ``y = S x + b`` per labelled sensor in float64 (eq. 3.2-3.3).
 
@@ -61,12 +62,12 @@ def fit(rec: Recording, options: LinearOptions, log: Log) -> Fitted:
         x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
         log(f"fitting linear ({s}) on {rec.n} samples ...")
         t0 = time.perf_counter()
-        with jax.enable_x64(True):  # LSB ~ 1e4 with 1e-5 relative floors: fit in float64
-            model = fit_affine(jnp.asarray(x), jnp.asarray(y))
-            model = Affine(np.asarray(model.S), np.asarray(model.b))
-            if not (np.all(np.isfinite(model.S)) and np.all(np.isfinite(model.b))):
-                raise ModelError(f"linear fit of '{s}' failed (singular: labels must span 3 directions)")
-            x_hat = np.asarray(LinearCal.from_forward(model).apply(jnp.asarray(y)))
+        # LSB ~ 1e4 with 1e-5 relative floors: fit in float64
+        model = fit_affine(jnp.asarray(x), jnp.asarray(y))
+        model = Affine(np.asarray(model.S), np.asarray(model.b))
+        if not (np.all(np.isfinite(model.S)) and np.all(np.isfinite(model.b))):
+            raise ModelError(f"linear fit of '{s}' failed (singular: labels must span 3 directions)")
+        x_hat = np.asarray(LinearCal.from_forward(model).apply(jnp.asarray(y)))
         state[s] = model
         meta["train_rms"][s] = rms(x_hat - x)
         log(f"fitting linear ({s}) ... done in {time.perf_counter() - t0:.1f} s, "

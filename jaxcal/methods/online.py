@@ -7,7 +7,6 @@ from __future__ import annotations
 import time
 from typing import Any, NamedTuple
 
-import jax
 import numpy as np
 
 from jaxcal import field, flags
@@ -24,11 +23,11 @@ from jaxcal.methods.base import (
     Log,
     Method,
     ModelError,
-    affine_state,
     apply_linear_state,
     check_linear_state,
     datasheet_cals,
     gsens_of,
+    linear_cal_of_state,
     linear_state,
     recording_dt,
     recording_spec,
@@ -401,9 +400,7 @@ def quality(rec: Recording, options: OnlineOptions, model: Any, *, held_out: boo
     Returns:
         ``(in_sample, held_out)`` rows (``held_out`` ``None`` when not asked for).
     """
-    with jax.enable_x64(True):
-        cals = tuple(LinearCal.from_forward(affine_state(model.state[s])) for s in SENSORS)
-        cals = tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
+    cals = tuple(linear_cal_of_state(model.state[s]) for s in SENSORS)
     if rec.seq is not None:
         return _seq_quality(rec, options, cals, held_out)
     try:

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Bool, Float
 from numpy.typing import ArrayLike
 
 from jaxcal.arrays import Array
+from jaxcal.precision import float64
 from jaxcal.rotation import exp_so3
 from jaxcal.sensor import LinearCal
 
@@ -160,6 +160,7 @@ class KnownRotations(NamedTuple):
     seg_ok: Bool[Array, " K"]
 
 
+@float64
 def prepare_known(
     t: np.ndarray,
     acc: np.ndarray,
@@ -189,8 +190,7 @@ def prepare_known(
     gyr = np.asarray(gyr, np.float64)
     sp = [(int(a), int(b)) for a, b in np.asarray(spans).reshape(-1, 2)]
     out, sdt, ok = _segment_sums(t, acc, gyr, sp, midpoint, block, gyr_limit)
-    with jax.enable_x64(True):
-        r = np.asarray(exp_so3(jnp.asarray(np.asarray(rotvecs, np.float64).reshape(-1, 3))))
+    r = np.asarray(exp_so3(jnp.asarray(np.asarray(rotvecs, np.float64).reshape(-1, 3))))
     return KnownRotations(out["sy"], sdt, out["c0"], out["p1"], out["p2"], out["sacc"], r, ok)
 
 

@@ -19,6 +19,7 @@ from jaxcal.multipos.data import OBSERVABLE_TOL, MultiposData, VerticalTurns, pr
 from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_prepared_numpy
 from jaxcal.multipos.gyro import gyro_angle_errors, vertical_turn_errors
 from jaxcal.multipos.observe import Observability, check_observable, observability
+from jaxcal.precision import float64
 from jaxcal.sensor import LinearCal
 from jaxcal.static import StaticDetection, detect_static
 
@@ -139,6 +140,7 @@ def detect_rests(rec: Recording, detect: DetectOptions) -> np.ndarray:
     return np.asarray(iv, int)
 
 
+@float64
 def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: MultiposConfig, detect: DetectOptions,
                 turn_times: Any) -> tuple[MultiposFit, StaticDetection, MultiposData, VerticalTurns | None]:
     """:func:`detect_and_fit`'s work: ``(fit, detection, prepared data, turns)``."""
@@ -153,9 +155,8 @@ def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: Multipo
                             gyr_gsens=config.g_sensitivity)
         if len(det.intervals) < 9:
             continue
-        with jax.enable_x64(True):
-            pa = jnp.asarray(np.stack([np.asarray(acc, np.float64)[a:b].mean(0) for a, b in det.intervals]))
-            _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps, None, config.acc_ridge)
+        pa = jnp.asarray(np.stack([np.asarray(acc, np.float64)[a:b].mean(0) for a, b in det.intervals]))
+        _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps, None, config.acc_ridge)
         score = float(cost) / len(pa)
         if best is None or score < best[0]:
             best = (score, det)
@@ -170,6 +171,7 @@ def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: Multipo
 TURN_TOL_DEG = 20.0  # a real whole turn closes within a degree or two after the fit
 
 
+@float64
 def check_turns(fit: MultiposFit, turns: VerticalTurns, times: Any) -> None:
     """Refuse turns the data contradict: after the fit, a window given as a whole turn about the
     vertical must integrate (with the calibrated gyroscope) to within :data:`TURN_TOL_DEG` of one.
@@ -182,10 +184,9 @@ def check_turns(fit: MultiposFit, turns: VerticalTurns, times: Any) -> None:
         turns: the turns (:func:`~jaxcal.multipos.turns_from_times`).
         times: (K, 2) start and end of each turn (s), as the user gave them (for the message).
     """
-    with jax.enable_x64(True):
-        tj, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (turns, fit))
-        err = np.degrees(np.asarray(vertical_turn_errors(fit.gyr, fit.gsens, fit.acc, tj)))
-        rate_int = np.asarray(tj.y_int - fit.gyr.b * tj.dt_sum[:, None]) @ np.asarray(fit.gyr.A).T
+    tj, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (turns, fit))
+    err = np.degrees(np.asarray(vertical_turn_errors(fit.gyr, fit.gsens, fit.acc, tj)))
+    rate_int = np.asarray(tj.y_int - fit.gyr.b * tj.dt_sum[:, None]) @ np.asarray(fit.gyr.A).T
     angle = np.degrees(np.linalg.norm(rate_int, axis=1))
     tt = np.asarray(times, np.float64).reshape(-1, 2)
     for k in np.flatnonzero((err > TURN_TOL_DEG) & np.asarray(turns.seg_ok)):  # saturated turns are not fitted
@@ -196,6 +197,7 @@ def check_turns(fit: MultiposFit, turns: VerticalTurns, times: Any) -> None:
             "deg); check the turn times (--turns) against this recording")
 
 
+@float64
 def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | None = None,
                 obs: Observability | None = None) -> dict:
     """In-sample quality of a fit on its own poses, for the user to judge a calibration: pose and
@@ -212,12 +214,11 @@ def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | Non
         obs: :func:`observability` of the same fit; None: computed here.
     """
     obs = observability(data, fit.acc, fit.gyr, turns=turns) if obs is None else obs
-    with jax.enable_x64(True):
-        d, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (data, fit))
-        ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
-        eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
-        et = None if turns is None else np.asarray(vertical_turn_errors(
-            fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
+    d, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (data, fit))
+    ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
+    eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
+    et = None if turns is None else np.asarray(vertical_turn_errors(
+        fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
     out = {"n_poses": int(len(ea)), "n_transitions": int(len(eg)), "acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),
            "gyr_median_deg": float(np.degrees(np.median(eg))) if len(eg) else None,
            "acc_sv_min": float(obs.acc_sv.min()), "gyr_sv_min": float(obs.gyr_sv.min())}
@@ -345,6 +346,7 @@ def traceless(G: np.ndarray) -> np.ndarray:
     return G - np.trace(G) / 3.0 * np.eye(3)
 
 
+@float64
 def _fit_recording(rec: Recording, config: MultiposConfig, detect: DetectOptions | None, turn_times: Any,
                    partial: bool, check: bool, summary: bool) -> tuple[MultiposFit, MultiposConfig, MultiposData,
                                                                      VerticalTurns | None, Observability | None, dict]:
@@ -366,8 +368,7 @@ def _fit_recording(rec: Recording, config: MultiposConfig, detect: DetectOptions
     if partial:
         if (obs.acc_sv < OBSERVABLE_TOL).any():
             config = config._replace(acc_fit="determined")
-            with jax.enable_x64(True):
-                n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
+            n = int(fit_acc_determined(jnp.asarray(data.pose_acc, jnp.float64), jnp.ones(len(data.pose_acc)))[1])
             kept["acc"] = f"{9 - n} of 9 combinations left as recorded, {n} fitted"
             fit = fit_prepared_numpy(data, config, turns=turns)
             obs = observability(data, fit.acc, fit.gyr, turns=turns)  # the gyro design, linearised at the new gravity directions

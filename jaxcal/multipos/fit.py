@@ -19,6 +19,7 @@ from jaxcal.arrays import Array
 from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
 from jaxcal.multipos.data import KnownRotations, MultiposData, VerticalTurns, calibrated_acc_sums, prepare
 from jaxcal.multipos.gyro import GyroArgs, gyr_residuals, rest_gsens, turn_init
+from jaxcal.precision import float64
 from jaxcal.sensor import LinearCal
 
 __all__ = [
@@ -218,6 +219,7 @@ def fit_multipos(
     return fit_prepared_numpy(data, config, turns=turns)
 
 
+@float64
 def fit_prepared_numpy(data: MultiposData, config: MultiposConfig = MultiposConfig(), *,
                        turns: VerticalTurns | None = None) -> MultiposFit:
     """:data:`fit_prepared_jit` in float64 on numpy-prepared data (and optional vertical ``turns``);
@@ -228,8 +230,7 @@ def fit_prepared_numpy(data: MultiposData, config: MultiposConfig = MultiposConf
         config: :class:`MultiposConfig` (static: a new config recompiles).
         turns: optional :class:`VerticalTurns` (numpy).
     """
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
-        fit = fit_prepared_jit(d, config, turns=tv)
-        return jax.tree_util.tree_map(np.asarray, fit)
+    d = jax.tree_util.tree_map(jnp.asarray, data)
+    tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
+    fit = fit_prepared_jit(d, config, turns=tv)
+    return jax.tree_util.tree_map(np.asarray, fit)

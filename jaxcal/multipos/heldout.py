@@ -13,6 +13,7 @@ from jaxcal.multipos.acc import acc_norm_errors
 from jaxcal.multipos.data import MultiposData
 from jaxcal.multipos.fit import MultiposConfig, fit_prepared
 from jaxcal.multipos.gyro import gyro_angle_errors
+from jaxcal.precision import float64
 
 __all__ = ["HeldOut", "fold_batch", "fold_ids", "fold_scores", "leave_poses_out"]
 
@@ -63,6 +64,7 @@ def fold_batch(n_folds: int) -> int:
     return 1 if jax.default_backend() == "cpu" else n_folds
 
 
+@float64
 def leave_poses_out(
     data: MultiposData, config: MultiposConfig = MultiposConfig(), n_folds: int | None = None,
     batch: int | None = None,
@@ -82,12 +84,11 @@ def leave_poses_out(
     P = data.pose_acc.shape[0]
     F = P if n_folds is None else n_folds
     pf, tf = fold_ids(P, F), fold_ids(P - 1, F)
-    with jax.enable_x64(True):
-        d = jax.tree_util.tree_map(jnp.asarray, data)
-        aw = jnp.asarray((pf[None, :] != np.arange(F)[:, None]).astype(np.float64))
-        gw = jnp.asarray((tf[None, :] != np.arange(F)[:, None]).astype(np.float64))
+    d = jax.tree_util.tree_map(jnp.asarray, data)
+    aw = jnp.asarray((pf[None, :] != np.arange(F)[:, None]).astype(np.float64))
+    gw = jnp.asarray((tf[None, :] != np.arange(F)[:, None]).astype(np.float64))
 
-        ea, eg = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
+    ea, eg = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
     acc_err = ea[pf, np.arange(P)]
     gyr_err = np.where(np.asarray(data.seg_ok), eg[tf, np.arange(P - 1)], np.nan)
     return HeldOut(acc_err, gyr_err, pf, tf)

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxcal.multipos.data import OBSERVABLE_TOL, MultiposData, VerticalTurns
+from jaxcal.precision import float64
 from jaxcal.rotation import hat
 from jaxcal.sensor import LinearCal
 
@@ -34,6 +34,7 @@ class Observability(NamedTuple):
     spread_deg: float
 
 
+@float64
 def observability(data: MultiposData, acc: LinearCal, gyr: LinearCal, *, acc_w: np.ndarray | None = None,
                   gyr_w: np.ndarray | None = None, turns: VerticalTurns | None = None) -> Observability:
     """:class:`Observability` of the calibrations ``acc`` and ``gyr`` (e.g. a fit's) on ``data``
@@ -64,8 +65,7 @@ def observability(data: MultiposData, acc: LinearCal, gyr: LinearCal, *, acc_w: 
     spread = float(np.degrees(np.arccos(np.clip(raw @ mean, -1.0, 1.0))).max())
     rows = [np.zeros((1, 9))]
     sy, sdt = np.asarray(data.sy).sum(1), np.asarray(data.sdt).sum(1)
-    with jax.enable_x64(True):
-        u_next = np.asarray(hat(jnp.asarray(u[1:])))
+    u_next = np.asarray(hat(jnp.asarray(u[1:])))
     for j in np.flatnonzero(gw > 0):
         y = (sy[j] - bg * sdt[j]) @ g.T
         rows.append(u_next[j] @ np.kron(y[None, :], np.eye(3)))

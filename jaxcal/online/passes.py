@@ -14,6 +14,7 @@ from jaxtyping import Float, Int
 
 from jaxcal.arrays import Array
 from jaxcal.online.filter import Filter, OnlineHP, OnlineState, forward_models, make_filter
+from jaxcal.precision import float64
 from jaxcal.sensor import Diag, LinearCal
 from jaxcal.sequences import pad_with_mask
 
@@ -101,6 +102,7 @@ def online_scan(
 online_scan_jit = jax.jit(online_scan, static_argnames=("kind",))
 
 
+@float64
 def online_pass(
     acc: Float[Array, "M N 3"],
     gyr: Float[Array, "M N 3"],
@@ -125,14 +127,13 @@ def online_pass(
         Final :class:`OnlineState` and the estimate after each sequence, both float64 (use them
         inside ``jax.enable_x64(True)``; convert with :func:`to_linear_cal`).
     """
-    with jax.enable_x64(True):
-        f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-        aspec = Diag(f64(acc_spec.s), f64(acc_spec.b))
-        gspec = Diag(f64(gyr_spec.s), f64(gyr_spec.b))
-        batch = spec_sequences(f64(acc), f64(gyr), aspec, gspec, None if mask is None else f64(mask))
-        hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
-        state0 = make_filter(kind).init(hp64, jnp.float64)
-        return online_scan_jit(state0, batch, f64(dt), hp64, kind)
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    aspec = Diag(f64(acc_spec.s), f64(acc_spec.b))
+    gspec = Diag(f64(gyr_spec.s), f64(gyr_spec.b))
+    batch = spec_sequences(f64(acc), f64(gyr), aspec, gspec, None if mask is None else f64(mask))
+    hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
+    state0 = make_filter(kind).init(hp64, jnp.float64)
+    return online_scan_jit(state0, batch, f64(dt), hp64, kind)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -140,6 +141,7 @@ def online_pass(
 # ----------------------------------------------------------------------------------------------
 
 
+@float64
 def fit_online_recording(
     acc: Float[Array, "L 3"],
     gyr: Float[Array, "L 3"],
@@ -198,9 +200,8 @@ def fit_online_recording(
         gyr_spec = Diag(np.full(3, scale), b)
         hp = hp._replace(prior_scale=max(float(hp.prior_scale), 0.3), prior_gyr_bias=max(float(hp.prior_gyr_bias), 0.3))
     state, _ = online_pass(pa, pg, dt, acc_spec, gyr_spec, hp, kind, mask=mk)
-    with jax.enable_x64(True):
-        f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-        models = forward_models(make_filter(kind), state.theta, Diag(f64(acc_spec.s), f64(acc_spec.b)),
-                                 Diag(f64(gyr_spec.s), f64(gyr_spec.b)))
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    models = forward_models(make_filter(kind), state.theta, Diag(f64(acc_spec.s), f64(acc_spec.b)),
+                             Diag(f64(gyr_spec.s), f64(gyr_spec.b)))
     am, gm = (LinearCal(np.linalg.inv(np.asarray(m.S)), np.asarray(m.b)) for m in models)
     return am, gm
