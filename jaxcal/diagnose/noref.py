@@ -88,6 +88,8 @@ class NorefConfig(NamedTuple):
         multipos: start from a multi-position calibration where the rests allow it.
         max_carry_s: longest motion between two rests across which gravity is carried from rest
             to rest (:func:`carried_gravity`); longer ones use the low-pass.
+        min_rest_free_s: shortest recording (s) diagnosed without any rest: its gravity is the
+            low-pass everywhere, which needs several of its widths of data.
     """
 
     gravity_sigma_s: float = 1.0
@@ -99,6 +101,7 @@ class NorefConfig(NamedTuple):
     n_blocks: int = 8
     multipos: bool = True
     max_carry_s: float = 30.0
+    min_rest_free_s: float = 10.0
 
 
 class SelfReference(NamedTuple):
@@ -283,11 +286,21 @@ _NO_REST = ("no rest of at least {:g} s: gravity is the low-pass (sigma {:g} s) 
             "hold the IMU still for a few seconds before and after the motion for a full diagnosis")
 
 
+def _require_rest_free_length(t: np.ndarray, cfg: NorefConfig) -> None:
+    """Refuse a recording without a rest that is shorter than ``cfg.min_rest_free_s``."""
+    dur = float(t[-1] - t[0])
+    if dur < cfg.min_rest_free_s:
+        raise ValueError(f"no reference motion (acc_ref/gyr_ref or pos_ref+quat_ref), no rest of at least {cfg.min_rest_s:g} s, "
+                         f"and {dur:.1f} s of data: without a rest the reference-free mode needs at least {cfg.min_rest_free_s:g} s; "
+                         "hold the IMU still for a few seconds, or record longer")
+
+
 def check_input(rec: Recording, cfg: NorefConfig = NorefConfig()) -> None:
     """Refuse, cheaply and before any work, a recording the reference-free mode cannot diagnose:
-    no ``acc`` or ``gyr``, or fewer than 100 samples. A recording without a rest is diagnosed
-    (the accelerometer only, against the low-pass of the gyro-carried specific force; the report
-    warns), not refused.
+    no ``acc`` or ``gyr``, fewer than 100 samples, or (with datasheet values or physical units)
+    no rest (:func:`rest_mask`) in fewer than ``cfg.min_rest_free_s`` seconds. A longer recording
+    without a rest is diagnosed (the accelerometer's motion effects only, against the low-pass of
+    the gyro-carried specific force; the report warns), not refused.
 
     Args:
         rec: the recording.
@@ -303,6 +316,12 @@ def check_input(rec: Recording, cfg: NorefConfig = NorefConfig()) -> None:
     t = np.asarray(rec.t, np.float64)
     if len(t) < 100:
         raise ValueError("diagnose needs a 't' array of at least 100 samples")
+    a, g = _spec_cal(rec, "acc"), _spec_cal(rec, "gyr")
+    if a is not None and g is not None and float(t[-1] - t[0]) < cfg.min_rest_free_s:
+        f = np.asarray(a.apply(np.asarray(rec.acc, np.float64)))
+        w = np.asarray(g.apply(np.asarray(rec.gyr, np.float64)))
+        if not rest_mask(t, f, w, cfg).any():
+            _require_rest_free_length(t, cfg)
 
 
 def self_reference(rec: Recording, cfg: NorefConfig = NorefConfig()) -> SelfReference:
@@ -320,6 +339,8 @@ def self_reference(rec: Recording, cfg: NorefConfig = NorefConfig()) -> SelfRefe
     f = np.asarray(a.apply(np.asarray(rec.acc, np.float64)), np.float64)
     w = np.asarray(g.apply(np.asarray(rec.gyr, np.float64)), np.float64)
     rest = rest_mask(t, f, w, cfg)
+    if not rest.any():
+        _require_rest_free_length(t, cfg)
     f_ref = carried_gravity(dead_reckon(w, dt), f, dt, cfg.gravity_sigma_s, rest, cfg.max_carry_s)
     notes.append(f"reference-free: starting calibration from {source}; {len(_runs(rest))} rests "
                  f"({rest.mean() * 100:.0f} % of the samples); gravity carried by the gyroscope from rest to rest (motions up to {cfg.max_carry_s:g} s), elsewhere a low-pass of sigma {cfg.gravity_sigma_s:g} s")
