@@ -24,6 +24,7 @@ linear-state helpers (a forward :class:`~jaxcal.sensor.Affine` on file, applied 
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
@@ -57,6 +58,7 @@ __all__ = [
     "apply_linear_state",
     "check_linear_state",
     "datasheet_cals",
+    "fit_each_labelled",
     "gsens_of",
     "holdout_mask",
     "labelled_sensors",
@@ -238,6 +240,38 @@ def labelled_sensors(rec: Recording, wanted: tuple[str, ...] | None, method: str
     for s in have:
         require_label_span(rec, s, method)
     return have
+
+
+def fit_each_labelled(rec: Recording, sensors: tuple[str, ...], method: str,
+                      fit_one: Callable[[str, np.ndarray, np.ndarray], tuple[Any, np.ndarray]], log: Log,
+                      detail: str = "") -> tuple[dict[str, Any], dict[str, float]]:
+    """The per-sensor loop of the methods fitted to reference labels (``linear``, ``cubic``): each
+    sensor's samples ``y`` and labels ``x`` in float64 to ``fit_one(sensor, y, x) -> (model, x_hat)``,
+    timed and logged, and its training RMS (:func:`rms` of ``x_hat - x``).
+
+    Args:
+        rec: the recording.
+        sensors: the labelled sensors to fit (:func:`labelled_sensors`), in order.
+        method: method name for the log lines.
+        fit_one: fits one sensor and returns its model and its calibrated training samples.
+        log: progress sink.
+        detail: what the start line adds after the sensor (e.g. ``", degree 3 (60 parameters),"``).
+
+    Returns:
+        ``sensor -> model`` and ``sensor -> train RMS``, in ``sensors`` order.
+    """
+    state: dict[str, Any] = {}
+    train_rms: dict[str, float] = {}
+    for s in sensors:
+        y = np.asarray(getattr(rec, s), np.float64)
+        x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
+        log(f"fitting {method} ({s}){detail} on {rec.n} samples ...")
+        t0 = time.perf_counter()
+        state[s], x_hat = fit_one(s, y, x)
+        train_rms[s] = rms(x_hat - x)
+        log(f"fitting {method} ({s}) ... done in {time.perf_counter() - t0:.1f} s, "
+            f"train rms {train_rms[s]:.3g} {PHYS_UNIT[s]}")
+    return state, train_rms
 
 
 LABEL_SPAN_MIN = 0.01  # least label spread along any direction, relative to the labels' RMS size

@@ -10,7 +10,6 @@ arrays: ``state/<sensor>/coef`` ``(3, Q)`` and ``state/<sensor>/bounds/{lo, hi}`
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping
 from typing import Any, NamedTuple
 
@@ -18,9 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcal import flags
-from jaxcal.constants import PHYS_UNIT
 from jaxcal.flags import Flag
-from jaxcal.methods.base import REF_KEY, SHARED_FLAGS, Fitted, Log, Method, ModelError, labelled_sensors, rms, units
+from jaxcal.methods.base import SHARED_FLAGS, Fitted, Log, Method, ModelError, fit_each_labelled, labelled_sensors, units
 from jaxcal.methods.quality import refit_quality
 from jaxcal.normalise import Bounds
 from jaxcal.polynomial import CubicCal, cubic_calibrate, degree_of, fit_cubic, n_monomials, n_params
@@ -68,24 +66,19 @@ def fit(rec: Recording, options: CubicOptions, log: Log) -> Fitted:
     if not ridge >= 0.0:
         raise ModelError(f"method 'cubic': ridge must be non-negative, got {ridge}")
     sensors = labelled_sensors(rec, options.sensors, "cubic")
-    state: dict[str, CubicCal] = {}
-    meta: dict[str, Any] = {"units": units(rec, sensors), "n_samples": rec.n, "degree": degree, "ridge": ridge,
-                            "n_params": n_params(degree), "train_rms": {}}
-    for s in sensors:
-        y = np.asarray(getattr(rec, s), np.float64)
-        x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
-        log(f"fitting cubic ({s}), degree {degree} ({n_params(degree)} parameters), on {rec.n} samples ...")
-        t0 = time.perf_counter()
+
+    def fit_one(s: str, y: np.ndarray, x: np.ndarray) -> tuple[CubicCal, np.ndarray]:
         # LSB ~ 1e4 with sub-mg floors: fit in float64
         model = fit_cubic(jnp.asarray(y), jnp.asarray(x), None, degree, ridge)
         model = CubicCal(np.asarray(model.coef), Bounds(np.asarray(model.bounds.lo), np.asarray(model.bounds.hi)))
         if not np.all(np.isfinite(model.coef)):
             raise ModelError(f"cubic fit of '{s}' failed (non-finite coefficients)")
-        x_hat = np.asarray(cubic_calibrate(model, jnp.asarray(y)))
-        state[s] = model
-        meta["train_rms"][s] = rms(x_hat - x)
-        log(f"fitting cubic ({s}) ... done in {time.perf_counter() - t0:.1f} s, "
-            f"train rms {meta['train_rms'][s]:.3g} {PHYS_UNIT[s]}")
+        return model, np.asarray(cubic_calibrate(model, jnp.asarray(y)))
+
+    state, train_rms = fit_each_labelled(rec, sensors, "cubic", fit_one, log,
+                                         detail=f", degree {degree} ({n_params(degree)} parameters),")
+    meta: dict[str, Any] = {"units": units(rec, sensors), "n_samples": rec.n, "degree": degree, "ridge": ridge,
+                            "n_params": n_params(degree), "train_rms": train_rms}
     return Fitted(sensors, state, meta)
 
 

@@ -4,16 +4,13 @@ reference labels with :func:`jaxcal.linear.fit_affine` and applied as a
 
 from __future__ import annotations
 
-import time
 from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcal.constants import PHYS_UNIT
 from jaxcal.linear import fit_affine
 from jaxcal.methods.base import (
-    REF_KEY,
     SHARED_FLAGS,
     Fitted,
     Log,
@@ -21,8 +18,8 @@ from jaxcal.methods.base import (
     ModelError,
     apply_linear_state,
     check_linear_state,
+    fit_each_labelled,
     labelled_sensors,
-    rms,
     units,
 )
 from jaxcal.methods.quality import refit_quality
@@ -55,23 +52,17 @@ def fit(rec: Recording, options: LinearOptions, log: Log) -> Fitted:
         log: progress sink.
     """
     sensors = labelled_sensors(rec, options.sensors, "linear")
-    state: dict[str, Affine] = {}
-    meta: dict[str, Any] = {"units": units(rec, sensors), "n_samples": rec.n, "train_rms": {}}
-    for s in sensors:
-        y = np.asarray(getattr(rec, s), np.float64)
-        x = np.asarray(getattr(rec, REF_KEY[s]), np.float64)
-        log(f"fitting linear ({s}) on {rec.n} samples ...")
-        t0 = time.perf_counter()
+
+    def fit_one(s: str, y: np.ndarray, x: np.ndarray) -> tuple[Affine, np.ndarray]:
         # LSB ~ 1e4 with 1e-5 relative floors: fit in float64
         model = fit_affine(jnp.asarray(x), jnp.asarray(y))
         model = Affine(np.asarray(model.S), np.asarray(model.b))
         if not (np.all(np.isfinite(model.S)) and np.all(np.isfinite(model.b))):
             raise ModelError(f"linear fit of '{s}' failed (singular: labels must span 3 directions)")
-        x_hat = np.asarray(LinearCal.from_forward(model).apply(jnp.asarray(y)))
-        state[s] = model
-        meta["train_rms"][s] = rms(x_hat - x)
-        log(f"fitting linear ({s}) ... done in {time.perf_counter() - t0:.1f} s, "
-            f"train rms {meta['train_rms'][s]:.3g} {PHYS_UNIT[s]}")
+        return model, np.asarray(LinearCal.from_forward(model).apply(jnp.asarray(y)))
+
+    state, train_rms = fit_each_labelled(rec, sensors, "linear", fit_one, log)
+    meta: dict[str, Any] = {"units": units(rec, sensors), "n_samples": rec.n, "train_rms": train_rms}
     return Fitted(sensors, state, meta)
 
 
