@@ -203,6 +203,25 @@ def test_report_gate_ranges():
     assert len(bad) == 1 and "gyroscope scales are 0.0006" in bad[0]
 
 
+def test_report_gate_align_consistency():
+    """One clock: gyro and acc time offsets 1.4 ms apart (BROAD 21 as recorded) pass; 43 ms apart at
+    3 ms standard errors (stressed BROAD 21, align locked on a 170-deg rotation) is refused, and so is
+    its 2.9 rad/s gyro bias. A split beyond 20 ms but within 5 standard errors passes (uninformative)."""
+    good = {"effects": []}
+
+    def align(tg, ta, se, bias=(0.001, -0.002, 0.0005)):
+        return {"tau": tg, "rotation_deg": 170.0, "bias_gyr_rads": list(bias),
+                "tau_per_sensor": {"gyr": {"tau": tg, "stderr": se}, "acc": {"tau": ta, "stderr": se}}}
+
+    assert report_gate(good, align=align(4.12e-3, 2.74e-3, 3e-5)) == []
+    bad = report_gate(good, align=align(-56.5e-3, -99.6e-3, 3e-3))
+    assert len(bad) == 1 and "43.1 ms apart" in bad[0] and "one clock cannot" in bad[0]
+    assert report_gate(good, align=align(-56.5e-3, -99.6e-3, 10e-3)) == []
+    bad = report_gate(good, align=align(0.0, 0.0, 1e-4, bias=(2.9, 0.1, -0.2)))
+    assert len(bad) == 1 and "gyroscope bias found is 2.91 rad/s" in bad[0] and "170 deg" in bad[0]
+    assert report_gate(good, align=align(0.0, 0.0, 1e-4, bias=(0.3, 0.1, -0.2))) == []  # an MPU-6050 within its 20 deg/s
+
+
 # ----------------------------------------------------------------------------- --model-out order
 
 

@@ -52,6 +52,11 @@ class GateConfig(NamedTuple):
             scales also carry a small frame rotation).
         min_spread: per sensor (rad/s, g), when neither the sensor nor its reference spreads this
             much, the fit is not judged (a rig at rest or barely moving: the noise would decide).
+        max_gyro_bias: largest plausible gyroscope bias, rad/s (57 deg/s; a consumer MEMS part's
+            zero-rate offset is specified within 0.35 rad/s, the MPU-6050's 20 deg/s).
+        max_tau_split_s: largest plausible difference between the accelerometer's and the
+            gyroscope's time offsets (s): one clock, filter delays that differ by a few ms.
+        tau_split_se: ... and the difference must also exceed this many combined standard errors.
     """
 
     max_ratio: dict = {"gyr": 0.5, "acc": 0.8}
@@ -65,6 +70,9 @@ class GateConfig(NamedTuple):
     post_scale_range: tuple[float, float] = (0.5, 2.0)
     min_spread: dict = {"gyr": 0.05, "acc": 0.02}
     max_lever_m: float = 1.0
+    max_gyro_bias: float = 1.0
+    max_tau_split_s: float = 0.02
+    tau_split_se: float = 5.0
 
 
 GATE = GateConfig()
@@ -325,7 +333,31 @@ def report_gate(report: dict, gate: GateResult | None = None, align: dict | None
             v = align.get(k)
             if v is not None and not np.isfinite(float(v)):
                 out.append(f"{k} is not finite: the fit failed")
+        out += _align_consistency(align, cfg)
     return list(dict.fromkeys(out))
+
+
+def _align_consistency(align: dict, cfg: GateConfig) -> list[str]:
+    """``align``'s figures that no rig produces: a gyroscope bias beyond ``cfg.max_gyro_bias``, and
+    accelerometer and gyroscope time offsets further apart than one clock and two filter delays
+    allow (both: a solution that fits the wrong rotation and clock, e.g. 170 deg off with a
+    2.9 rad/s bias on a stressed BROAD trial)."""
+    out = []
+    b = align.get("bias_gyr_rads")
+    if b is not None:
+        bn = float(np.linalg.norm(_num(b)))
+        if not bn <= cfg.max_gyro_bias:
+            out.append(f"the gyroscope bias found is {bn:.3g} rad/s (beyond {cfg.max_gyro_bias:g} rad/s, no MEMS gyroscope's): "
+                       f"the alignment settled on a wrong rotation ({float(align.get('rotation_deg', np.nan)):.0f} deg) or clock")
+    per = align.get("tau_per_sensor") or {}
+    if "gyr" in per and "acc" in per:
+        (tg, sg), (ta, sa) = ((float(per[s]["tau"]), float(per[s].get("stderr") or 0.0)) for s in ("gyr", "acc"))
+        d = abs(tg - ta)
+        if not (d <= cfg.max_tau_split_s or d <= cfg.tau_split_se * float(np.hypot(sg, sa))):
+            out.append(f"the gyroscope and accelerometer put the time offset at {tg * 1e3:.1f} and {ta * 1e3:.1f} ms, "
+                       f"{d * 1e3:.1f} ms apart (beyond {cfg.max_tau_split_s * 1e3:g} ms and {cfg.tau_split_se:g} standard errors): "
+                       "one clock cannot; the alignment did not find the rig's offset")
+    return out
 
 
 ALTERNATIVES = (
