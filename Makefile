@@ -75,8 +75,7 @@ test-latest:
 	.venv-latest/bin/python -m pip freeze --exclude jaxcal | diff -I '^#' $(LOCK) - || true
 	.venv-latest/bin/python -m pytest $(PYTEST_ARGS)
 
-## Near-threshold scan: the suite five times (cold and warm compilation cache: the CLI subprocesses'
-## since tests/conftest.py keeps the test processes off it; other hash seeds,
+## Near-threshold scan: the suite five times (cold and warm compilation cache, other hash seeds,
 ## two host devices, serial with single-threaded Eigen), every numeric assertion's margin logged,
 ## then a sixth, informative run with XLA's fast math (reassociated sums: how far each value moves
 ## when reduction order changes; its failures do not stop the scan) -> results/margins.md

@@ -13,6 +13,7 @@ argument or ``@pytest.mark.usefixtures("x64")``) instead of opening ``jax.enable
 """
 
 import functools
+import gc
 import os
 
 import jax
@@ -26,16 +27,6 @@ from jaxcal.diagnose.report import promise_violations
 # (`make test` sets JAX_COMPILATION_CACHE_DIR to the checkout's .jax_cache; a bare pytest run uses none).
 if not os.environ.get("JAX_COMPILATION_CACHE_DIR"):
     os.environ.setdefault("JAXCAL_NO_CACHE", "1")
-
-# The test processes themselves neither read nor write the persistent cache; the CLI subprocesses
-# they start still share it through JAX_COMPILATION_CACHE_DIR. jaxlib 0.10.2 killed an xdist
-# worker (SIGSEGV or SIGABRT) inside `executable.serialize()`, the cache write in
-# jax/_src/compilation_cache.py, in all four suites run on 405b984 (two fresh clones here, the CI
-# run, and a `-n 2` run with JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0 that crashed 18 minutes
-# in); in the three whose stack was printed whole, compiling diagnose's refit solve in
-# tests/test_align.py after the worker had run other files. That test alone, every executable serialized, passes. The dead worker left xdist
-# waiting until CI's 90-minute limit.
-jax.config.update("jax_enable_compilation_cache", False)
 
 CHECKED_REPORTS = [0]
 
@@ -54,6 +45,24 @@ def _checked(fn):
 
 
 _diagnose.diagnose_recording = _checked(_diagnose.diagnose_recording)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_code():
+    """Drop jax's compiled executables after each test module (:func:`jax.clear_caches`).
+
+    Each executable XLA's CPU backend keeps alive holds about 7 memory mappings (300 small jitted
+    functions: 437 -> 2449 mappings, back to 514 after clearing), and a process may hold
+    ``vm.max_map_count`` (65530 by default). An xdist worker runs half the suite: one held 52853
+    when its sibling died in ``tests/test_align.py``'s large diagnose compiles (SIGSEGV or SIGABRT,
+    in ``backend_compile_and_load`` or ``executable.serialize()``), and xdist then waited until
+    CI's limit. With the limit lowered to 6000, a loop of small jitted functions dies the same way
+    at about 850 of them ("LLVM compilation error: Cannot allocate memory", SIGSEGV). A module's
+    next call recompiles, or loads from the persistent cache.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 
 @pytest.fixture
