@@ -61,6 +61,9 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         mod.main(quick=args.quick)
         dt = time.perf_counter() - t0
+        # a finished experiment's compiled code is released: each live XLA CPU executable holds about
+        # 7 memory mappings, and a process may hold vm.max_map_count (65530 by default; tests/conftest.py)
+        jax.clear_caches()
         # Quick forms write STEM_quick.md, except experiments whose only form is the quick one.
         report = f"{stem}_quick.md" if args.quick and (RESULTS / f"{stem}_quick.md").exists() else f"{stem}.md"
         print(f"[run_all] {module} done in {dt:.0f} s -> results/{report}", file=sys.stderr, flush=True)
