@@ -52,8 +52,8 @@ class GateConfig(NamedTuple):
             scales also carry a small frame rotation).
         min_spread: per sensor (rad/s, g), when neither the sensor nor its reference spreads this
             much, the fit is not judged (a rig at rest or barely moving: the noise would decide).
-        max_gyro_bias: largest plausible gyroscope bias, rad/s (57 deg/s; a consumer MEMS part's
-            zero-rate offset is specified within 0.35 rad/s, the MPU-6050's 20 deg/s).
+        max_gyro_bias: largest plausible gyroscope bias, rad/s (57 deg/s; consumer MEMS parts
+            specify their zero-rate offset within about 0.35 rad/s, the MPU-6050 +-20 deg/s).
         max_tau_split_s: largest plausible difference between the accelerometer's and the
             gyroscope's time offsets (s): one clock, filter delays that differ by a few ms.
         tau_split_se: ... and the difference must also exceed this many combined standard errors.
