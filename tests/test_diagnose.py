@@ -14,7 +14,7 @@ from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.kinematics import reference_from_pose
 from jaxcal.diagnose.simulate import RichConfig, simulate_batch, simulate_recording
-from jaxcal.diagnose.whiten import LAMBDAS, apply_filter, fit_ar, ll_innovations, reml_profile
+from jaxcal.diagnose.whiten import LAMBDAS, apply_filter, fit_ar, ll_innovations, reml_profile, usable_lambdas
 from jaxcal.rotation import exp_so3, quat_from_matrix
 
 N = 4000
@@ -125,6 +125,30 @@ def test_reml_random_walk_level_not_absorbed_by_a_drift_regressor():
     # on white noise the profile prefers (essentially) no walk
     prof0 = reml_profile(rng.standard_normal(n), np.ones(n, bool), X)
     assert LAMBDAS[int(np.argmax(prof0))] <= 1e-6
+
+
+def test_dense_gaps_do_not_leave_the_noise_model_one_quiet_stretch():
+    # a quiet head (a rest, sd 0.004 with a slow walk) then motion whose residual is white with
+    # sd 0.14, a two-sample dropout every 150 samples (mocap losing markers): a random-walk level
+    # whose filter memory outlasts the spacing fits the head alone (before the fix: lam 1e-3,
+    # memory 146, sigma 0.0040; the stressed BROAD 21 rig: 4 mrad/s where the motion's residual
+    # was 0.14 rad/s, and the refit lost the gyroscope's whole scale)
+    rng = np.random.default_rng(3)
+    n = 6000
+    head = 0.004 * (rng.standard_normal(400) + np.cumsum(np.sqrt(1e-3) * rng.standard_normal(400)))
+    e = np.concatenate([head, 0.14 * rng.standard_normal(n - 400)])
+    valid = np.ones(n, bool)
+    for k in range(400, n - 2, 150):
+        valid[k : k + 2] = False
+    offered = usable_lambdas(valid)
+    assert offered[0] and not offered.all()  # lam = 0 always; the long memories are not offered
+    assert not offered[np.asarray(LAMBDAS) == 1e-4].any()  # memory 469 samples against gaps every 150
+    prof = reml_profile(e, valid)
+    assert np.all(np.isneginf(prof[~offered])) and np.isfinite(prof[offered]).any()
+    ar = fit_ar(e, valid, 16)
+    assert 0.12 < ar.sigma < 0.16, ar  # the motion's noise (0.136), not the rest's
+    # without gaps nothing changes: every level offered
+    assert usable_lambdas(np.ones(n, bool)).all()
 
 
 def test_random_walk_null_names_nothing():

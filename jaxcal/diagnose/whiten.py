@@ -37,6 +37,7 @@ __all__ = [
     "local_level_gains",
     "ll_innovations",
     "reml_profile",
+    "usable_lambdas",
     "theta_of",
     "choose_lambda",
     "fit_ar",
@@ -231,6 +232,37 @@ def _logdet_gram(a: np.ndarray) -> tuple[float, int]:
     return float(ld + 2.0 * np.sum(np.log(nrm[keep]))), int(keep.sum())
 
 
+MIN_KEEP = 0.5
+"""The least share of the usable rows a random-walk level may leave (:func:`usable_lambdas`)."""
+
+
+def usable_lambdas(valid: np.ndarray, lams=LAMBDAS, max_order: int = 16, min_keep: float = MIN_KEEP) -> np.ndarray:
+    """Which random-walk levels leave at least ``min_keep`` of the usable rows to fit and test on.
+
+    The local-level filter restarts after every interior gap, and the rows within its memory
+    (:func:`gap_ok`, about ``log 0.01 / log theta`` samples: 469 at ``lam = 1e-4``) are dropped. A
+    reference with a dropout every few seconds (motion capture losing markers) then leaves, for a
+    small ``lam``, only the stretch before the first gap, often a rest: the noise model and every
+    test built on it would see that stretch alone (on a stressed BROAD trial it was a 4 mrad/s rest
+    noise against 0.14 rad/s over the motion, and the joint refit lost the gyroscope's whole scale).
+    Such levels are not offered; ``lam = 0`` (no random-walk stage, no memory) always is.
+
+    Args:
+        valid: (N,) bool, usable samples.
+        lams: the random-walk levels.
+        max_order: the largest AR order (its taps add to the memory).
+        min_keep: the least share of ``valid``'s rows a level must keep.
+
+    Returns:
+        (len(lams),) bool.
+    """
+    valid = np.asarray(valid, bool)
+    n = max(int(valid.sum()), 1)
+    mems = [_ima_memory(theta_of(float(lam))) for lam in lams]
+    keep = {m: gap_ok(valid, m + max_order).sum() / n for m in set(mems)}
+    return np.array([lam == 0.0 or keep[m] >= min_keep for lam, m in zip(lams, mems)])
+
+
 def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, lams=LAMBDAS, max_order: int = 16) -> np.ndarray:
     """Restricted log-likelihood profile of the random-walk level of a residual, one per ``lams``.
 
@@ -242,7 +274,8 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
     The ``log det`` term is what keeps slow regressors (drift, temperature) from absorbing a
     random walk and shrinking its estimate, which made ordinary (or residual-based) estimates
     call drift significant on pure random-walk noise. Returns (len(lams),); all ``-inf`` when
-    there are too few rows.
+    there are too few rows, and ``-inf`` at the levels :func:`usable_lambdas` does not offer (the
+    profile is then computed on the rows the longest offered memory leaves).
 
     Args:
         e: (N,) residual.
@@ -258,12 +291,17 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
     Xv = np.zeros((n, 0)) if X is None else np.asarray(X, np.float64)[fi]
     nrm = np.sqrt(np.sum(Xv * Xv, 0))
     Xv = Xv[:, nrm > 1e-12 * max(float(nrm.max()) if nrm.size else 0.0, 1e-300)]
-    rows = gap_ok(valid, 500 + max_order) & (np.arange(n) > max_order)
+    offered = usable_lambdas(valid, lams, max_order)
+    # the rows every offered level keeps (500: the memory cap, the rows of a recording without dense gaps)
+    mem = 500 if offered.all() else max(_ima_memory(theta_of(float(lam))) for lam, ok in zip(lams, offered) if ok)
+    rows = gap_ok(valid, mem + max_order) & (np.arange(n) > max_order)
     if rows.sum() < 4 * (max_order + Xv.shape[1]) + 50:
         return np.full(len(lams), -np.inf)
     orders = [p for p in ORDERS if p <= max_order]
     prof = np.full(len(lams), -np.inf)
     for j, lam in enumerate(lams):
+        if not offered[j]:
+            continue
         _, sf = local_level_gains(float(lam), n)
         ew = ll_innovations(ev, lam)
         Xw = ll_innovations(Xv, lam) if Xv.shape[1] else Xv
