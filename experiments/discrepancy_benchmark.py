@@ -503,6 +503,8 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
     import matplotlib.pyplot as plt
 
     from jaxcal.diagnose.align import align_recording, alignment_figure
+    from jaxcal.diagnose.core import prepare
+    from jaxcal.diagnose.gate import baseline_scales, reference_gate, report_gate
     from jaxcal.diagnose.report import promise_violations
     from jaxcal.diagnose.stress import alignment_errors, compose_truth, random_stress_config, stress
 
@@ -538,14 +540,17 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
             srec, truth = stress(rec, cfg, rng)
             exp = compose_truth(truth, a0.align["tau"], np.asarray(a0.align["R_ref_imu"]), np.asarray(a0.align["r"]))
             t0 = time.perf_counter()
+            gate = reference_gate(prepare(srec))
             a = align_recording(srec)
             t_align = time.perf_counter() - t0
+            # what `jaxcal align` does with it: the reference gate before the fit, the report gate after
+            refused = gate.problems or report_gate(a.report, gate, a.align, scales=baseline_scales(a.results, "affine"))
             t0 = time.perf_counter()
             drep = diagnose_recording(srec, baseline="affine", pose_sigma=None)
             t_d = time.perf_counter() - t0
             err = alignment_errors(a.align, exp)
             st = {"config": cfg._asdict(), "expected": {k2: np.asarray(v).tolist() for k2, v in exp.items()}, "align": _align_summary(a.align),
-                  "errors": err, "align_time_s": t_align, "band": drep.get("reference_band"),
+                  "errors": err, "align_time_s": t_align, "band": drep.get("reference_band"), "cli_refuses": list(refused),
                   "diagnose_affine": {"named": _named_list(drep), "baseline": drep["baseline"], "final": drep["final"],
                                       "promise_violations": promise_violations(drep), "time_s": t_d}}
             if i == 0:
@@ -555,7 +560,8 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
                 st["align_figure"] = f"figures/{prefix}_align_{tag}_stressed.png"
             stressed.append(st)
             print(f"  stressed #{i}: tau err {err['tau_err_s'] * 1e3:+.2f} ms, rotation err {err['rotation_err_deg']:.3f} deg, "
-                  f"r err {np.round(np.asarray(err.get('r_err_m', [np.nan] * 3)) * 1e3, 1)} mm, goals {err['all_ok']}; "
+                  f"r err {np.round(np.asarray(err.get('r_err_m', [np.nan] * 3)) * 1e3, 1)} mm, goals {err['all_ok']}, "
+                  f"the command {'refuses' if refused else 'writes'} it; "
                   f"diagnose names {st['diagnose_affine']['named']}", flush=True)
             if i == 0 and conceal_here:
                 st["concealed"] = _rig_concealed(srec, drep, rng)
@@ -592,6 +598,13 @@ def _mm(v, se=None) -> str:
     if se is not None:
         txt += " +- [" + ", ".join(f"{x:g}" for x in np.round(1.96 * np.asarray(se, float) * 1e3, 1)) + "]"
     return txt
+
+
+def _verdict(refuses: list[str] | None) -> str:
+    """What ``jaxcal align`` does with a stressed recording: writes, or refuses with its first reason."""
+    if refuses is None:
+        return "not recorded"
+    return f"refuses: {refuses[0]}" if refuses else "writes"
 
 
 def rigs_markdown(res: dict) -> str:
@@ -631,8 +644,8 @@ def rigs_markdown(res: dict) -> str:
           "`align` estimates. Goals (issue 14): |tau error| <= max(1 ms, 3 s.e.), rotation error <= max(0.5 deg, 3 s.e.), each lever-arm "
           "component <= max(1 cm, 3 s.e.).", "",
           "| recording | stress: shift (ms), rotation (deg), lever arm (cm), vibration (g), jitter (ms) | band | tau error (ms) [s.e.] | "
-          "rotation error (deg) [s.e.] | lever-arm error (mm) [s.e.] | goals | `diagnose --baseline affine` names | promise kept |",
-          "|---|---|---|---|---|---|---|---|---|"]
+          "rotation error (deg) [s.e.] | lever-arm error (mm) [s.e.] | goals | `jaxcal align` (its gates) | `diagnose --baseline affine` names | promise kept |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
     n_ok = n_all = n_vague = 0
     for name, r in res["recordings"].items():
         for st in r.get("stressed", []):
@@ -647,10 +660,16 @@ def rigs_markdown(res: dict) -> str:
             L.append(f"| {name} | {c['clock_shift_s'] * 1e3:+.0f}, {np.linalg.norm(c['rotation_deg']):.1f}, {np.linalg.norm(c['lever_arm_m']) * 100:.1f}, "
                      f"{c['vibration_rms_g']:.2f}, {c['jitter_s'] * 1e3:.1f} | 0-{b.get('band_hz', [0, float('nan')])[1]:.1f} Hz | "
                      f"{e['tau_err_s'] * 1e3:+.2f} [{e['tau_se_s'] * 1e3:.2f}] | {e['rotation_err_deg']:.3f} [{e['rotation_se_deg']:.3f}] | "
-                     f"{_mm(e.get('r_err_m'))} [{_mm(e.get('r_se_m'))}] | {('met only within 3 s.e. wider than the goal (uninformative)' if vague else 'met') if e['all_ok'] else 'MISSED'} | {', '.join(dd['named']) or 'nothing'} | "
+                     f"{_mm(e.get('r_err_m'))} [{_mm(e.get('r_se_m'))}] | {('met only within 3 s.e. wider than the goal (uninformative)' if vague else 'met') if e['all_ok'] else 'MISSED'} | "
+                     f"{_verdict(st.get('cli_refuses'))} | {', '.join(dd['named']) or 'nothing'} | "
                      f"{'yes' if not dd['promise_violations'] else dd['promise_violations']} |")
     L += ["", f"Goals met in {n_ok} of {n_all} stressed recordings; {n_vague} of those only because 3 standard errors exceed the goal "
           "(the recording did not determine the estimate: a practical miss)."]
+    verdicts = [(st["errors"]["all_ok"], st.get("cli_refuses")) for r in res["recordings"].values() for st in r.get("stressed", [])]
+    if all(v is not None for _, v in verdicts):
+        L += [f"`jaxcal align` writes {sum(ok and not v for ok, v in verdicts)} of the {n_ok} that meet the goals and refuses "
+              f"{sum(bool(v) for ok, v in verdicts if not ok)} of the {n_all - n_ok} that miss them (its reference and report gates, "
+              "`jaxcal/diagnose/gate.py`)."]
     conc = [(name, c) for name, r in res["recordings"].items() for st in r.get("stressed", []) for c in st.get("concealed", [])]
     if conc:
         L += ["", "### Effects concealed at 3x MDS in a stressed recording", "",
