@@ -503,8 +503,7 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
     import matplotlib.pyplot as plt
 
     from jaxcal.diagnose.align import align_recording, alignment_figure
-    from jaxcal.diagnose.core import prepare
-    from jaxcal.diagnose.gate import baseline_scales, reference_gate, report_gate
+    from jaxcal.diagnose.gate import baseline_scales, check_reference, report_gate
     from jaxcal.diagnose.report import promise_violations
     from jaxcal.diagnose.stress import alignment_errors, compose_truth, random_stress_config, stress
 
@@ -540,11 +539,14 @@ def rigs(quick: bool, prefix: str = "discrepancy") -> dict:
             srec, truth = stress(rec, cfg, rng)
             exp = compose_truth(truth, a0.align["tau"], np.asarray(a0.align["R_ref_imu"]), np.asarray(a0.align["r"]))
             t0 = time.perf_counter()
-            gate = reference_gate(prepare(srec))
+            try:  # what `jaxcal align` does with it: the reference gate before the fit, the report gate after
+                gate, refused = check_reference(srec), []
+            except ValueError as e:
+                gate, refused = None, [str(e)]
             a = align_recording(srec)
             t_align = time.perf_counter() - t0
-            # what `jaxcal align` does with it: the reference gate before the fit, the report gate after
-            refused = gate.problems or report_gate(a.report, gate, a.align, scales=baseline_scales(a.results, "affine"))
+            if gate is not None:
+                refused = report_gate(a.report, gate, a.align, scales=baseline_scales(a.results, "affine"))
             t0 = time.perf_counter()
             drep = diagnose_recording(srec, baseline="affine", pose_sigma=None)
             t_d = time.perf_counter() - t0
