@@ -63,7 +63,7 @@ def measure(reps: int) -> dict:
                 ts.append(time.perf_counter() - t0)
             results[name] = [np.asarray(x) for x in res]
             out[name] = {"batch": batch, "compile_s": compile_s, "run_s": statistics.median(ts), "run_s_all": ts}
-    (ea0, eg0), (ea1, eg1) = results["vmap_all"], results["one_after_another"]
+    (ea0, eg0, *_), (ea1, eg1, *_) = results["vmap_all"], results["one_after_another"]
     ok = np.isfinite(eg0) & np.isfinite(eg1)
     out["max_abs_diff"] = {"acc_g": float(np.max(np.abs(ea0 - ea1))), "gyr_rad": float(np.max(np.abs(eg0 - eg1)[ok]))}
     out["run_ratio"] = out["vmap_all"]["run_s"] / out["one_after_another"]["run_s"]

@@ -425,6 +425,32 @@ def test_lower_times_rotation_refuses_a_singular_matrix():
         lower_times_rotation(np.array([[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [0.0, 0.0, 1.0]]) * 0.0)
 
 
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+def test_bias_standard_errors_go_into_the_yaml_exports_in_the_files_units(fmt, tmp_path, capsys):
+    """A fit that recorded its biases' standard errors (``held_out.bias_sd``, the model's input unit,
+    as multipos writes it) exports them as ``jaxcal_b_a_sd`` / ``jaxcal_b_g_sd``, converted as the
+    biases are (ROS: the driver's m/s^2 and rad/s per LSB times the model's), and says where they
+    are; a model without them says that its fit recorded none."""
+    m = _model("linear")
+    sd = {"acc": [14.0, 9.6, 8.5], "gyr": [4.4, 4.3, 1.2]}
+    with_sd = CalibrationModel(m.method, m.sensors, m.state, {**m.meta, "held_out": {"bias_sd": {**sd, "how": "test"}}})
+    save_model(with_sd, tmp_path / "m.npz")
+    save_model(m, tmp_path / "plain.npz")
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--acc-lsb-per-g", "16384",
+                        "--gyr-lsb-per-rads", "7505.7", "--out", tmp_path / "m.yaml")
+    assert code == 0, err
+    assert "standard error is in jaxcal_b_a_sd / jaxcal_b_g_sd" in err
+    imu = _read_yaml(tmp_path / "m.yaml")["imu0"]
+    np.testing.assert_allclose(imu["jaxcal_b_a_sd"], np.array(sd["acc"]) * G0 / 16384.0, rtol=1e-12)
+    np.testing.assert_allclose(imu["jaxcal_b_g_sd"], np.array(sd["gyr"]) / 7505.7, rtol=1e-12)
+    code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--units", "model", "--out", tmp_path / "u.yaml")
+    assert code == 0, err
+    np.testing.assert_allclose(_read_yaml(tmp_path / "u.yaml")["imu0"]["jaxcal_b_g_sd"], sd["gyr"], rtol=1e-12)
+    code, _, err = _run(capsys, "export", tmp_path / "plain.npz", "--format", fmt, "--out", tmp_path / "p.yaml")
+    assert code == 0 and "fit recorded none" in err, err
+    assert "jaxcal_b_a_sd" not in _read_yaml(tmp_path / "p.yaml")["imu0"]
+
+
 def test_yaml_exports_need_both_sensors_and_keep_their_keys(tmp_path, capsys):
     m = _model("linear")
     acc_only = CalibrationModel("linear", ("acc",), {"acc": m.state["acc"]}, {"units": {"acc": "LSB"}})

@@ -45,6 +45,8 @@ class QualityRow(TypedDict, total=False):
         initial_guess: the same items scored with the fit's starting point (a :class:`QualityRow`).
         not_held_out: items left unscored because their fold was undetermined.
         without_g_sensitivity: the same figure fitted without the gyro's g-sensitivity.
+        bias_sd: the fitted biases' standard errors in the model's input units (``{"acc": [3] or
+            None, "gyr": [3] or None, "how": str}``), from the held-out folds (``multipos``).
         error: why the row could not be computed (the other keys absent).
         skipped: why the row was not computed.
     """
@@ -56,6 +58,7 @@ class QualityRow(TypedDict, total=False):
     initial_guess: Any
     not_held_out: dict
     without_g_sensitivity: Any
+    bias_sd: dict
     error: str
     skipped: str
 

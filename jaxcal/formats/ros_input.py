@@ -117,12 +117,13 @@ IMU0_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 
 """Why a Kalibr / OpenVINS IMU file cannot hold a time offset or transform against a reference."""
 
 
-def not_carried(fmt: str, units: str) -> list[str]:
+def not_carried(fmt: str, units: str, has_bias_sd: bool = False) -> list[str]:
     """What a linear model's ``fmt`` file (``kalibr``, ``openvins``) does not give the filter, one phrase each.
 
     Args:
         fmt: ``kalibr`` or ``openvins``.
         units: ``ros`` or ``model``.
+        has_bias_sd: the file holds the biases' standard errors (``jaxcal_b_a_sd``, ``jaxcal_b_g_sd``).
     """
     if fmt == "openvins":
         bias = ("the constant bias (kalibr_imu_chain.yaml has no bias key; OpenVINS reads an initial bias only as "
@@ -132,7 +133,12 @@ def not_carried(fmt: str, units: str) -> list[str]:
         bias = "the constant bias (Kalibr has no bias key: it estimates the bias itself; jaxcal_b_a / jaxcal_b_g are not read)"
     prior = ("OpenVINS has no key for it either: it inflates its own initial covariance, init_dyn_inflation_bg / _ba"
              if fmt == "openvins" else "Kalibr has no key for a bias prior")
-    out = [bias, f"a standard deviation of the bias (a linear model's fit records none; {prior})",
+    if has_bias_sd:
+        sd = (f"a prior on the bias ({prior}; its standard error is in jaxcal_b_a_sd / jaxcal_b_g_sd: for multipos a "
+              "delete-one-pose jackknife of this session's estimate, to which the part's turn-on repeatability adds)")
+    else:
+        sd = f"a standard deviation of the bias (this model's fit recorded none; {prior})"
+    out = [bias, sd,
            f"time_offset and T_i_b ({IMU0_LIMITS})"]
     if units == "model":
         out.append("the ROS units (written in the model's input unit: a ROS driver's m/s^2 and rad/s need --units ros)")

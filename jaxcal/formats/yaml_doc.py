@@ -37,6 +37,7 @@ __all__ = [
     "exported",
     "imu0",
     "imu_dict",
+    "bias_sd",
     "jaxcal_fields",
     "merge",
     "ordered",
@@ -65,12 +66,34 @@ def jaxcal_fields(model: CalibrationModel, cals: Mapping[str, LinearCal], ros: R
         "jaxcal_input_unit_acc": units["acc"],
         "jaxcal_input_unit_gyr": units["gyr"],
     }
+    for s, key in (("acc", "jaxcal_b_a_sd"), ("gyr", "jaxcal_b_g_sd")):
+        sd = bias_sd(model, s, ros)
+        if sd is not None:
+            out[key] = [float(v) for v in sd]
     if ros is not None:
         out["jaxcal_units"] = "ros"
         for s in IMU_SENSORS:
             out[f"jaxcal_model_unit_{s}"] = ros.model_unit[s]
             out[f"jaxcal_ros_per_model_unit_{s}"] = [float(v) for v in ros.per_model_unit[s]]
     return {**out, "jaxcal_method": model.method, "jaxcal_version": __version__}
+
+
+def bias_sd(model: CalibrationModel, sensor: str, ros: RosInput | None = None) -> np.ndarray | None:
+    """The standard error of ``sensor``'s fitted bias in the file's input unit, when the fit recorded
+    one (``meta["held_out"]["bias_sd"]``, the model's input unit: ``multipos``'s delete-one-pose
+    jackknife); ``None`` otherwise. With ``ros`` it is converted as the bias is (``|c|`` times it).
+
+    Args:
+        model: the exported model.
+        sensor: ``acc`` or ``gyr``.
+        ros: the ROS conversion (:func:`export_cals`), or ``None`` for the model's own unit.
+    """
+    rec = ((model.meta or {}).get("held_out") or {}).get("bias_sd") or {}
+    v = rec.get(sensor)
+    if v is None:
+        return None
+    sd = np.asarray(v, np.float64)
+    return sd * np.abs(ros.per_model_unit[sensor]) if ros is not None else sd
 
 
 def export_cals(model: CalibrationModel, units: str, datasheet: Mapping[str, Any] | None) -> tuple[dict[str, LinearCal], RosInput | None]:
@@ -109,7 +132,7 @@ def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple
     """A YAML export's file: ``build(model, noise, units, datasheet) -> (dict, RosInput | None)``, with the
     header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
     d, ros = build(model, options.noise, options.units, options.datasheet)
-    lost = not_carried(fmt, options.units)
+    lost = not_carried(fmt, options.units, has_bias_sd=all(bias_sd(model, s) is not None for s in IMU_SENSORS))
     return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
 
 
@@ -120,7 +143,8 @@ def ros_notes(tool: str, ros: RosInput | None, not_carried: Sequence[str]) -> li
         lines += [f"Input (jaxcal_units: ros): the samples a ROS driver publishes in sensor_msgs/Imu, "
                   f"{ROS_UNIT['acc']} and {ROS_UNIT['gyr']}; the driver's conversion of the model's input:"]
         lines += [f"  {s}: {ros.how[s]}" for s in IMU_SENSORS]
-        lines += ["The biases jaxcal_b_a, jaxcal_b_g are in those units (jaxcal_ros_per_model_unit_* x the model's bias)."]
+        lines += ["The biases jaxcal_b_a, jaxcal_b_g (and their standard errors jaxcal_b_a_sd, jaxcal_b_g_sd, when the fit "
+                  "recorded them) are in those units (jaxcal_ros_per_model_unit_* x the model's bias)."]
     return lines + [f"Not carried to {tool}:"] + [f"  - {n}" for n in not_carried]
 
 

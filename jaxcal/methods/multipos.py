@@ -37,6 +37,7 @@ from jaxcal.multipos import (
     MultiposConfig,
     detect_and_fit,
     fit_multipos_recording,
+    jackknife_sd,
     leave_poses_out,
     observability,
     prepare,
@@ -44,7 +45,7 @@ from jaxcal.multipos import (
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "detect_options", "determined_folds", "fit", "heldout", "multipos_config",
+__all__ = ["METHOD", "MultiposOptions", "bias_sd", "detect_options", "determined_folds", "fit", "heldout", "multipos_config",
            "quality"]
 
 
@@ -250,7 +251,29 @@ def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | 
     return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))) if ea.size else None,
             "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None,
             "how": how + ("; turns not used by the folds" if options.turns else ""),
-            "not_held_out": {"poses": np.flatnonzero(~acc_ok).tolist(), "transitions": np.flatnonzero(~gyr_ok).tolist()}}
+            "not_held_out": {"poses": np.flatnonzero(~acc_ok).tolist(), "transitions": np.flatnonzero(~gyr_ok).tolist()},
+            "bias_sd": bias_sd(ho, acc_ok, kept)}
+
+
+def bias_sd(ho: Any, acc_ok: np.ndarray, kept: Mapping[str, Any]) -> dict[str, Any]:
+    """The standard errors of the fitted biases, in the model's input units, from the
+    leave-one-pose-out folds (:func:`jaxcal.multipos.jackknife_sd` of each fold's bias): fold ``k``
+    leaves pose ``k`` out of both fits (the gyroscope's bias is the weighted mean of the poses'
+    rests). Folds that leave the fit undetermined are not used; a sensor the fit kept at its
+    starting point (``--partial``) has none.
+
+    Args:
+        ho: :func:`jaxcal.multipos.leave_poses_out`'s result, one fold per pose.
+        acc_ok: (P,) the folds that determine the fit (:func:`determined_folds`).
+        kept: ``meta["fit_quality"]["partial"]``.
+    """
+    out: dict[str, Any] = {}
+    for s, folds in (("acc", ho.acc_bias), ("gyr", ho.gyr_bias)):
+        sd = jackknife_sd(folds, acc_ok)
+        out[s] = None if s in kept or not np.all(np.isfinite(sd)) else sd.tolist()
+    out["how"] = (f"delete-one-pose jackknife over {int(acc_ok.sum())} poses: the standard error of this session's "
+                  "estimate (between-pose spread included); a part's turn-on bias repeatability adds to it")
+    return out
 
 
 def determined_folds(data: Any, whole: Any, ho: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -47,7 +47,7 @@ as the residual functions and their argument types stay in their modules):
   :class:`DetectOptions`, then the fit and its checks, observability and :func:`check_turns` for
   given turns; applied :class:`~jaxcal.sensor.LinearCal` pairs for
   ``jaxcal calibrate --method multipos``);
-* ``heldout``: :func:`leave_poses_out`;
+* ``heldout``: :func:`leave_poses_out`, :func:`jackknife_sd` (the biases' standard errors from its folds);
 * ``timesplit``: a held-out time split of a continuous Ferraris session (:func:`time_split`), fair
   to a labelled tool such as imucal and to multipos.
 
@@ -86,7 +86,7 @@ from jaxcal.multipos.gyro import (
     rest_gsens,
     vertical_turn_errors,
 )
-from jaxcal.multipos.heldout import HeldOut, fold_batch, fold_ids, leave_poses_out
+from jaxcal.multipos.heldout import HeldOut, fold_batch, fold_ids, jackknife_sd, leave_poses_out
 from jaxcal.multipos.observe import Observability, check_observable, observability
 from jaxcal.multipos.timesplit import (
     FERRARIS_FACES,
@@ -115,7 +115,7 @@ __all__ = [
     "acc_norm_errors", "gyro_angle_errors", "known_rotation_errors", "vertical_turn_errors",
     "block_rotvecs", "carry_rotation",
     # held-out
-    "HeldOut", "fold_batch", "fold_ids", "leave_poses_out",
+    "HeldOut", "fold_batch", "fold_ids", "jackknife_sd", "leave_poses_out",
     "FERRARIS_FACES", "FERRARIS_TURNS", "TimeSplit", "time_split", "whole_sections", "peer_sections",
     "gyro_folds", "split_samples",
 ]

@@ -15,18 +15,21 @@ from jaxcal.multipos.fit import MultiposConfig, fit_prepared
 from jaxcal.multipos.gyro import gyro_angle_errors
 from jaxcal.precision import float64
 
-__all__ = ["HeldOut", "fold_batch", "fold_ids", "fold_scores", "leave_poses_out"]
+__all__ = ["HeldOut", "fold_batch", "fold_ids", "fold_scores", "jackknife_sd", "leave_poses_out"]
 
 
 class HeldOut(NamedTuple):
     """Leave-poses-out scores: ``acc_err`` (P,) ``| |f| - 1 |`` in g of each pose from the fold
     that left it out, ``gyr_err`` (J,) the carried-gravity angle (rad) of each transition from
-    the fold that left it out (NaN for unusable transitions), and the fold of each."""
+    the fold that left it out (NaN for unusable transitions), and the fold of each; ``acc_bias``,
+    ``gyr_bias`` (F, 3) each fold's fitted biases (input units), for :func:`jackknife_sd`."""
 
     acc_err: np.ndarray
     gyr_err: np.ndarray
     pose_fold: np.ndarray
     trans_fold: np.ndarray
+    acc_bias: np.ndarray | None = None
+    gyr_bias: np.ndarray | None = None
 
 
 def fold_ids(n: int, n_folds: int) -> np.ndarray:
@@ -42,15 +45,16 @@ def fold_ids(n: int, n_folds: int) -> np.ndarray:
 @partial(jax.jit, static_argnames=("config", "batch"))
 def fold_scores(
     d: MultiposData, config: MultiposConfig, aw: jax.Array, gw: jax.Array, batch: int
-) -> tuple[jax.Array, jax.Array]:
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """Every fold's fit (weights ``aw`` (F, P), ``gw`` (F, J)) and its scores on all poses (F, P)
-    and transitions (F, J), ``batch`` folds at a time in one ``vmap`` (``lax.map``; 1: one after
-    another). The data is an argument, not a closure constant: one compilation per shape, config
-    and batch (the persistent cache keeps it), not one per call."""
+    and transitions (F, J), and its accelerometer and gyroscope biases (F, 3) each, ``batch`` folds
+    at a time in one ``vmap`` (``lax.map``; 1: one after another). The data is an argument, not a
+    closure constant: one compilation per shape, config and batch (the persistent cache keeps it),
+    not one per call."""
 
-    def one(weights: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
+    def one(weights: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
         f = fit_prepared(d, config, acc_w=weights[0], gyr_w=weights[1])
-        return acc_norm_errors(f.acc, d.pose_acc), gyro_angle_errors(f.gyr, f.gsens, f.acc, d)
+        return acc_norm_errors(f.acc, d.pose_acc), gyro_angle_errors(f.gyr, f.gsens, f.acc, d), f.acc.b, f.gyr.b
 
     return jax.lax.map(one, (aw, gw), batch_size=batch if batch > 1 else None)
 
@@ -88,7 +92,27 @@ def leave_poses_out(
     aw = jnp.asarray((pf[None, :] != np.arange(F)[:, None]).astype(np.float64))
     gw = jnp.asarray((tf[None, :] != np.arange(F)[:, None]).astype(np.float64))
 
-    ea, eg = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
+    ea, eg, ba, bg = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
     acc_err = ea[pf, np.arange(P)]
     gyr_err = np.where(np.asarray(data.seg_ok), eg[tf, np.arange(P - 1)], np.nan)
-    return HeldOut(acc_err, gyr_err, pf, tf)
+    return HeldOut(acc_err, gyr_err, pf, tf, ba, bg)
+
+
+def jackknife_sd(values: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
+    """The grouped (delete-a-group) jackknife standard error of an estimate from its fold values:
+    ``sqrt((G - 1) / G sum_g (v_g - mean)^2)`` over the ``G`` folds kept (Efron & Tibshirani, An
+    Introduction to the Bootstrap, eq. 11.5). From :func:`leave_poses_out`'s ``acc_bias`` /
+    ``gyr_bias`` it is the standard error of the session's bias estimate, poses resampled: the
+    between-pose spread (bias instability, an unmodelled g-sensitivity) counts, the part's turn-on
+    repeatability does not.
+
+    Args:
+        values: (G, ...) each fold's estimate.
+        keep: (G,) bool, folds used (default all); fewer than 2 give NaN.
+    """
+    v = np.asarray(values, np.float64)
+    v = v if keep is None else v[np.asarray(keep, bool)]
+    g = v.shape[0]
+    if g < 2:
+        return np.full(v.shape[1:], np.nan)
+    return np.sqrt((g - 1) / g * np.sum((v - v.mean(0)) ** 2, 0))
