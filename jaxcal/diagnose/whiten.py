@@ -239,8 +239,9 @@ MIN_KEEP = 0.5
 def usable_lambdas(valid: np.ndarray, lams=LAMBDAS, max_order: int = 16, min_keep: float = MIN_KEEP) -> np.ndarray:
     """Which random-walk levels leave at least ``min_keep`` of the usable rows to fit and test on.
 
-    The local-level filter restarts after every interior gap, and the rows within its memory
-    (:func:`gap_ok`, about ``log 0.01 / log theta`` samples: 469 at ``lam = 1e-4``) are dropped. A
+    The filters run through a gap on held values, so the rows within their memory after every
+    interior gap are dropped (:func:`gap_ok`; about ``log 0.01 / log theta`` samples: 469 at
+    ``lam = 1e-4``). A
     reference with a dropout every few seconds (motion capture losing markers) then leaves, for a
     small ``lam``, only the stretch before the first gap, often a rest: the noise model and every
     test built on it would see that stretch alone (on a stressed BROAD trial it was a 4 mrad/s rest
