@@ -8,8 +8,10 @@ before any estimate is reported or any model written:
 1. :func:`reference_gate`, before the diagnosis, on the :class:`~jaxcal.diagnose.core.Prepared`
    recording: enough reference (samples and time span), a reference that moves when the sensor
    does, and an affine fit ``y = A x(t - lag) + b`` (lag searched within ``max_lag_s`` by the
-   rotation-invariant rate norm) whose held-out residual is small against the signal's own spread,
+   rotation-invariant rate norm; for the accelerometer ``+ M(t) r``, the lever arm's terms from the
+   sensor's own gyroscope) whose held-out residual is small against the signal's own spread,
    with the singular values of ``A`` (the baseline's scales, the frame rotation factored out) near 1.
+   :func:`check_reference` judges a failing pose-derived reference once more in its trusted band.
 2. :func:`report_gate`, after it, on the report (and ``align``'s result): the baseline's and the
    final fit's held-out RMS against the same spread, the baseline's scales, and every reported
    quantity inside its plausible range (|tau| <= 2 s, |r| <= 1 m, ...).
@@ -24,6 +26,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxcal.constants import G0
 from jaxcal.diagnose.core import Prepared, prepare
 from jaxcal.recording import Recording
 
@@ -129,26 +132,66 @@ def _shift(x: np.ndarray, valid: np.ndarray, lag: int) -> tuple[np.ndarray, np.n
     return xs, ok
 
 
-def _affine_heldout(y: np.ndarray, x: np.ndarray, rows: np.ndarray, block: np.ndarray) -> tuple[float, float, np.ndarray]:
+def _lever_matrix(prep: Prepared) -> np.ndarray | None:
+    """(N, 3, 3) ``M(t) = ([dw/dt]x + [w]x^2) / G0`` from the sensor's own gyroscope (its frame, g per
+    metre): an accelerometer ``r`` metres from the reference point adds ``M(t) r`` to the specific
+    force. ``None`` without a gyroscope."""
+    sd = prep.sensors.get("gyr")
+    if sd is None:
+        return None
+    w = np.where(np.asarray(sd.valid, bool)[:, None], np.asarray(sd.y, float), 0.0)
+    wd = np.gradient(w, float(prep.dt), axis=0)
+
+    def cross(v: np.ndarray) -> np.ndarray:
+        z = np.zeros(len(v))
+        return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1), np.stack([v[:, 2], z, -v[:, 0]], 1),
+                         np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
+
+    W = cross(w)
+    return (cross(wd) + W @ W) / G0
+
+
+def _stacked(x: np.ndarray, lever: np.ndarray | None) -> np.ndarray:
+    """(N, 3, P) design of ``y_i = A_i . x + M_i(t) . r + b_i`` for every output axis ``i``: the
+    unknowns ``vec(A)`` (9, row-major), ``r`` (3, shared by the axes, only with ``lever``), ``b`` (3)."""
+    n = len(x)
+    nr = 0 if lever is None else 3
+    X = np.zeros((n, 3, 12 + nr))
+    for i in range(3):
+        X[:, i, 3 * i : 3 * i + 3] = x
+        X[:, i, 9 + nr + i] = 1.0
+        if lever is not None:
+            X[:, i, 9:12] = lever[:, i, :]
+    return X
+
+
+def _affine_heldout(y: np.ndarray, x: np.ndarray, rows: np.ndarray, block: np.ndarray,
+                    lever: np.ndarray | None = None) -> tuple[float, float, np.ndarray]:
     """Affine least squares ``y = A x + b`` on the even blocks, scored on the odd ones (and the
     other way round); returns the held-out RMS, the held-out signal RMS spread and ``A`` fitted on
-    all rows."""
-    X = np.column_stack([x, np.ones(len(x))])
+    all rows. With ``lever`` (:func:`_lever_matrix`), ``y = A x + M(t) r + b``: one lever arm ``r``
+    for the three axes (the accelerometer's offset from the reference point, which ``align``
+    estimates)."""
+    X = _stacked(x, lever)
+
+    def solve(m: np.ndarray) -> np.ndarray:
+        return np.linalg.lstsq(X[m].reshape(-1, X.shape[2]), y[m].reshape(-1), rcond=None)[0]
+
     res, sig = [], []
     for k in (0, 1):
         tr = rows & (block % 2 == k)
         te = rows & (block % 2 != k)
         if tr.sum() < 12 or te.sum() < 2:
             continue
-        th = np.linalg.lstsq(X[tr], y[tr], rcond=None)[0]
-        res.append(y[te] - X[te] @ th)
+        res.append(y[te] - X[te] @ solve(tr))
         sig.append(y[te] - y[te].mean(0))
-    th = np.linalg.lstsq(X[rows], y[rows], rcond=None)[0]
+    th = solve(rows)
+    A = th[:9].reshape(3, 3)
     if not res:
         r = y[rows] - X[rows] @ th
-        return float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean((y[rows] - y[rows].mean(0)) ** 2))), th[:3].T
+        return float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean((y[rows] - y[rows].mean(0)) ** 2))), A
     r, s = np.concatenate(res), np.concatenate(sig)
-    return float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean(s**2))), th[:3].T
+    return float(np.sqrt(np.mean(r**2))), float(np.sqrt(np.mean(s**2))), A
 
 
 def _clock(y: np.ndarray, x: np.ndarray, valid: np.ndarray, block: np.ndarray, dt: float, cfg: GateConfig,
@@ -205,6 +248,7 @@ def reference_gate(prep: Prepared, cfg: GateConfig = GATE) -> GateResult:
     dt = float(prep.dt)
     max_lag = max(1, int(round(cfg.max_lag_s / dt)))
     lag = None
+    lever = _lever_matrix(prep)
     for s in ("gyr", "acc"):
         sd = prep.sensors.get(s)
         if sd is None:
@@ -227,7 +271,9 @@ def reference_gate(prep: Prepared, cfg: GateConfig = GATE) -> GateResult:
         rows = ok & valid
         if rows.sum() < cfg.min_rows:
             rows = valid
-        hr, sig, A = _affine_heldout(y, xs, rows, np.asarray(sd.block))
+        # the accelerometer may sit centimetres from the reference point (align estimates that lever arm):
+        # its terms, from the sensor's own gyroscope, are fitted alongside
+        hr, sig, A = _affine_heldout(y, xs, rows, np.asarray(sd.block), lever if s == "acc" else None)
         sv = np.linalg.svd(A, compute_uv=False) if np.isfinite(A).all() else np.full(3, np.nan)
         ref_spread = float(np.sqrt(np.mean((x[rows] - x[rows].mean(0)) ** 2)))
         ratio = hr / sig if sig > 0 else np.inf
