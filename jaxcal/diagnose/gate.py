@@ -432,7 +432,7 @@ def check_reference(rec: Recording, cfg: GateConfig = GATE) -> GateResult:
     g = reference_gate(prepare(rec), cfg)
     if g.problems and rec.gyr_ref is None and rec.pos_ref is not None and rec.quat_ref is not None:
         # a pose-derived reference differentiated with the 20 ms kernel can be mostly noise (100 Hz
-        # mocap with ms time-stamp jitter: accelerometer scales fitted 0.35-0.72, the attenuation of
+        # mocap with ms time-stamp jitter: accelerometer scales fitted 0.3-0.8, the attenuation of
         # errors in variables); judged again in the band where it keeps its gain (jaxcal.diagnose.band,
         # the diagnosis's own kernel), it may explain the sensor after all
         banded = reference_gate(prepare(rec, pose_sigma=None), cfg)

@@ -100,8 +100,8 @@ def leave_poses_out(
 
 def jackknife_sd(values: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
     """The grouped (delete-a-group) jackknife standard error of an estimate from its fold values:
-    ``sqrt((G - 1) / G sum_g (v_g - mean)^2)`` over the ``G`` folds kept (Efron & Tibshirani, An
-    Introduction to the Bootstrap, eq. 11.5). From :func:`leave_poses_out`'s ``acc_bias`` /
+    ``sqrt((G - 1) / G sum_g (v_g - mean)^2)`` over the ``G`` folds kept (the delete-a-group
+    jackknife; Efron & Tibshirani, An Introduction to the Bootstrap, ch. 11). From :func:`leave_poses_out`'s ``acc_bias`` /
     ``gyr_bias`` it is the standard error of the session's bias estimate, poses resampled: the
     between-pose spread (bias instability, an unmodelled g-sensitivity) counts, the part's turn-on
     repeatability does not.
