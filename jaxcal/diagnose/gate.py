@@ -141,14 +141,8 @@ def _lever_matrix(prep: Prepared) -> np.ndarray | None:
         return None
     w = np.where(np.asarray(sd.valid, bool)[:, None], np.asarray(sd.y, float), 0.0)
     wd = np.gradient(w, float(prep.dt), axis=0)
-
-    def cross(v: np.ndarray) -> np.ndarray:
-        z = np.zeros(len(v))
-        return np.stack([np.stack([z, -v[:, 2], v[:, 1]], 1), np.stack([v[:, 2], z, -v[:, 0]], 1),
-                         np.stack([-v[:, 1], v[:, 0], z], 1)], 1)
-
-    W = cross(w)
-    return (cross(wd) + W @ W) / G0
+    # column k: M e_k, the lever-arm term of conceal_lever_arm_gyro for r = e_k
+    return np.stack([np.cross(wd, e) + np.cross(w, np.cross(w, e)) for e in np.eye(3)], 2) / G0
 
 
 def _stacked(x: np.ndarray, lever: np.ndarray | None) -> np.ndarray:

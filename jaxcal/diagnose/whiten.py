@@ -67,6 +67,11 @@ def _ima_memory(theta: float) -> int:
     return int(min(np.ceil(np.log(1e-2) / np.log(theta)), 500))
 
 
+def _lambda_memory(lam: float) -> int:
+    """:func:`_ima_memory` of the random-walk level ``lam``."""
+    return _ima_memory(theta_of(float(lam)))
+
+
 def _lag_matrix(e: np.ndarray, p: int) -> np.ndarray:
     n = len(e)
     out = np.zeros((n, p))
@@ -241,9 +246,8 @@ def usable_lambdas(valid: np.ndarray, lams=LAMBDAS, max_order: int = 16, min_kee
 
     The filters run through a gap on held values, so the rows within their memory after every
     interior gap are dropped (:func:`gap_ok`; about ``log 0.01 / log theta`` samples: 469 at
-    ``lam = 1e-4``). A
-    reference with a dropout every few seconds (motion capture losing markers) then leaves, for a
-    small ``lam``, only the stretch before the first gap, often a rest: the noise model and every
+    ``lam = 1e-4``). A reference with a dropout every few seconds (motion capture losing markers)
+    then leaves, for a small ``lam``, only the stretch before the first gap, often a rest: the noise model and every
     test built on it would see that stretch alone (on a stressed BROAD trial it was a 4 mrad/s rest
     noise against 0.14 rad/s over the motion, and the joint refit lost the gyroscope's whole scale).
     Such levels are not offered; ``lam = 0`` (no random-walk stage, no memory) always is.
@@ -259,7 +263,7 @@ def usable_lambdas(valid: np.ndarray, lams=LAMBDAS, max_order: int = 16, min_kee
     """
     valid = np.asarray(valid, bool)
     n = max(int(valid.sum()), 1)
-    mems = [_ima_memory(theta_of(float(lam))) for lam in lams]
+    mems = [_lambda_memory(lam) for lam in lams]
     keep = {m: gap_ok(valid, m + max_order).sum() / n for m in set(mems)}
     return np.array([lam == 0.0 or keep[m] >= min_keep for lam, m in zip(lams, mems)])
 
@@ -293,8 +297,8 @@ def reml_profile(e: np.ndarray, valid: np.ndarray, X: np.ndarray | None = None, 
     nrm = np.sqrt(np.sum(Xv * Xv, 0))
     Xv = Xv[:, nrm > 1e-12 * max(float(nrm.max()) if nrm.size else 0.0, 1e-300)]
     offered = usable_lambdas(valid, lams, max_order)
-    # the rows every offered level keeps (500: the memory cap, the rows of a recording without dense gaps)
-    mem = 500 if offered.all() else max(_ima_memory(theta_of(float(lam))) for lam, ok in zip(lams, offered) if ok)
+    # the rows every offered level keeps (without dense gaps: the memory cap, 500 samples)
+    mem = max(_lambda_memory(lam) for lam, ok in zip(lams, offered) if ok)
     rows = gap_ok(valid, mem + max_order) & (np.arange(n) > max_order)
     if rows.sum() < 4 * (max_order + Xv.shape[1]) + 50:
         return np.full(len(lams), -np.inf)

@@ -35,9 +35,9 @@ __all__ = [
     "document_text",
     "export_cals",
     "exported",
+    "file_bias_sd",
     "imu0",
     "imu_dict",
-    "bias_sd",
     "jaxcal_fields",
     "merge",
     "ordered",
@@ -67,7 +67,7 @@ def jaxcal_fields(model: CalibrationModel, cals: Mapping[str, LinearCal], ros: R
         "jaxcal_input_unit_gyr": units["gyr"],
     }
     for s, key in (("acc", "jaxcal_b_a_sd"), ("gyr", "jaxcal_b_g_sd")):
-        sd = bias_sd(model, s, ros)
+        sd = file_bias_sd(model, s, ros)
         if sd is not None:
             out[key] = [float(v) for v in sd]
     if ros is not None:
@@ -78,7 +78,7 @@ def jaxcal_fields(model: CalibrationModel, cals: Mapping[str, LinearCal], ros: R
     return {**out, "jaxcal_method": model.method, "jaxcal_version": __version__}
 
 
-def bias_sd(model: CalibrationModel, sensor: str, ros: RosInput | None = None) -> np.ndarray | None:
+def file_bias_sd(model: CalibrationModel, sensor: str, ros: RosInput | None = None) -> np.ndarray | None:
     """The standard error of ``sensor``'s fitted bias in the file's input unit, when the fit recorded
     one (``meta["held_out"]["bias_sd"]``, the model's input unit: ``multipos``'s delete-one-pose
     jackknife); ``None`` otherwise. With ``ros`` it is converted as the bias is (``|c|`` times it).
@@ -132,7 +132,7 @@ def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple
     """A YAML export's file: ``build(model, noise, units, datasheet) -> (dict, RosInput | None)``, with the
     header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
     d, ros = build(model, options.noise, options.units, options.datasheet)
-    lost = not_carried(fmt, options.units, has_bias_sd=all(bias_sd(model, s) is not None for s in IMU_SENSORS))
+    lost = not_carried(fmt, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS))
     return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
 
 
