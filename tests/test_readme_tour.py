@@ -11,8 +11,11 @@ The first ``jaxcal`` command, and every command that is not ``jaxcal``, runs thr
 show there). The other ``jaxcal`` commands run in this process through ``jaxcal.cli.main`` with the
 same arguments (``shlex`` splits them as bash does): the same code from argument parsing on, without
 an interpreter start and a re-import per command, and with the compiled code of one command there
-for the next (``diagnose`` then ``align`` on one recording): 217 -> 152 s, measured back to back on
-the 2-core machine with a warm compilation cache and one core busy. It also checks that no command depends on a fresh
+for the next (``diagnose`` then ``align`` on one recording). Timed as whole ``pytest`` processes on
+the 2-core machine, this test alone against the previous all-subprocess version, three runs each in
+turn, warm compilation cache, the other core busy: wall 291 -> 191 s (medians; ratio 0.66, range
+0.63-0.66), at the cost of peak memory 0.83 -> 3.0 GiB (one process holds every command's compiled
+code). It also checks that no command depends on a fresh
 process: state one command leaves behind would show up in the next. Warnings are shown as a fresh
 interpreter shows them (Python's default filters) and fail the command alike.
 """
