@@ -18,18 +18,20 @@ from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.select import Decision, SelectConfig, SensorData, candidates, coarse_lag, critical_value, linearize_baseline
 from jaxcal.diagnose.whiten import apply_filter, fill_index, fit_ar, gap_ok
 
-__all__ = ["Start", "Offset", "coarse_offset", "theta_with_tau", "edge_rows", "baseline_resid"]
+__all__ = ["Start", "Offset", "coarse_offset", "theta_with_tau", "edge_count", "edge_rows", "baseline_resid"]
 
 
 class Start(NamedTuple):
     """Where one pass starts: ``lag_hint`` the coarse lag (samples) another sensor on the same
     clock found; ``relin`` ``(tau, decision)``: linearised at a refit time offset named by an
     earlier pass; ``no_offset``: the time offset dropped from the candidates (it did not lower the
-    held-out rms)."""
+    held-out rms); ``edge_shift`` (s): how far a clock skew named by an earlier pass moves the
+    recording's ends on the reference's clock, trimmed from the fitted rows as well."""
 
     lag_hint: int | None = None
     relin: tuple[float, Decision] | None = None
     no_offset: bool = False
+    edge_shift: float = 0.0
 
 
 class Offset(NamedTuple):
@@ -93,15 +95,29 @@ def coarse_offset(kind: str, sd: SensorData, cfg: SelectConfig, level: float, st
     return Offset(tau_lin, coarse, cands, pre, warnings)
 
 
+def edge_count(tau: float, dt: float, shift: float = 0.0, margin: int = 3) -> int:
+    """Rows trimmed at each end by :func:`edge_rows`: ``ceil((|tau| + shift) / dt) + margin``."""
+    return int(np.ceil((abs(tau) + shift) / dt)) + margin
+
+
 def theta_with_tau(sensor: str, tau: float) -> np.ndarray:
     th = np.zeros(E.N_THETA[sensor])
     th[E.slot(sensor, "time_offset").start] = tau
     return th
 
 
-def edge_rows(valid: np.ndarray, tau: float, dt: float) -> np.ndarray:
+def edge_rows(valid: np.ndarray, tau: float, dt: float, shift: float = 0.0) -> np.ndarray:
+    """``valid`` without the rows at either end that a time shift of ``|tau| + shift`` (s) moves
+    past the reference's ends (the band-limited shift and stretch reflect there), plus 3 rows.
+
+    Args:
+        valid: (N,) bool, rows with a reference.
+        tau: the time offset (s).
+        dt: sample interval (s).
+        shift: a further shift of the ends (s), a clock skew's ``|s| max |t - t_mid|``.
+    """
     m = valid.copy()
-    e = int(np.ceil(abs(tau) / dt)) + 3
+    e = edge_count(tau, dt, shift)
     m[:e] = False
     m[-e:] = False
     return m

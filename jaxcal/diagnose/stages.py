@@ -29,7 +29,7 @@ from scipy import stats
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose.band_pool import candidate_spread, pool_named, widen_information
 from jaxcal.diagnose.locate import breakdown
-from jaxcal.diagnose.offset import Offset, Start, baseline_resid, coarse_offset, edge_rows, theta_with_tau
+from jaxcal.diagnose.offset import Offset, Start, baseline_resid, coarse_offset, edge_count, edge_rows, theta_with_tau
 from jaxcal.diagnose.refit import RefitResult, refit
 from jaxcal.diagnose.select import (
     Decision,
@@ -194,6 +194,15 @@ class Relinearise(NamedTuple):
     decision: Decision
 
 
+class Retrim(NamedTuple):
+    """A pass's answer: a clock skew was named whose stretch moves the recording's ends by
+    ``shift`` (s) on the reference's clock, more than the rows trimmed for the time offset cover:
+    those rows saw reference times the reference does not hold (the stretch reflects there: errors
+    of up to 0.13 g and 0.8 rad/s in the last 8 rows at 500 ppm over 20 min); run again without them."""
+
+    shift: float
+
+
 class DropOffset(NamedTuple):
     """A pass's answer: the time offset did not lower the held-out rms; run again without it and
     report ``decision`` and ``warning``."""
@@ -205,16 +214,17 @@ class DropOffset(NamedTuple):
 # ----------------------------------------------------------------------------- stages
 
 
-def linearise(kind: str, sd: SensorData, tau_lin: float) -> Linearised:
-    """Stage 2: the baseline fitted at the time offset ``tau_lin`` on the rows its shift leaves
-    trustworthy, and the regressors of every effect there.
+def linearise(kind: str, sd: SensorData, tau_lin: float, edge_shift: float = 0.0) -> Linearised:
+    """Stage 2: the baseline fitted at the time offset ``tau_lin`` on the rows its shift (and a
+    named clock skew's ``edge_shift``) leaves trustworthy, and the regressors of every effect there.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
         sd: the sensor's prepared data.
         tau_lin: the linearisation offset (s).
+        edge_shift: a clock skew's shift of the ends (s, :class:`Retrim`).
     """
-    fit_rows = edge_rows(sd.valid, tau_lin, float(sd.inp.dt))
+    fit_rows = edge_rows(sd.valid, tau_lin, float(sd.inp.dt), edge_shift)
     theta_lin = theta_with_tau(sd.sensor, tau_lin)
     _, beta = baseline_resid(kind, sd, theta_lin, fit_rows)
     x, z = linearize(kind, sd, beta, theta_lin)
@@ -515,9 +525,9 @@ def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, ord
 
 
 def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, start: Start = Start(),
-                meas: E.Inputs | None = None, force: tuple[str, ...] = ()) -> SensorResult | Relinearise | DropOffset:
+                meas: E.Inputs | None = None, force: tuple[str, ...] = ()) -> SensorResult | Relinearise | Retrim | DropOffset:
     """Stages 1-5 once from ``start``: the :class:`SensorResult`, or the answer that another pass
-    is needed (:class:`Relinearise`, :class:`DropOffset`).
+    is needed (:class:`Relinearise`, :class:`Retrim`, :class:`DropOffset`).
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -531,7 +541,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     """
     level = cfg.alpha / n_tests
     off = coarse_offset(kind, sd, cfg, level, start, force)
-    lin = linearise(kind, sd, off.tau_lin)
+    lin = linearise(kind, sd, off.tau_lin, start.edge_shift)
     sel = select_effects(kind, sd, cfg, level, off, lin, start, force)
     det = detectability(kind, sd, cfg, level, off, lin, sel, meas)
     named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level, cfg.huber)
@@ -543,6 +553,11 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
         if abs(tau_hat - off.tau_lin) > 0.02 * float(sd.inp.dt):
             d0 = decisions["time_offset"]
             return Relinearise(tau_hat, d0 if isinstance(d0, Decision) else Decision(**d0))
+    if start.edge_shift == 0.0 and "clock_skew" in order:
+        dt = float(sd.inp.dt)
+        shift = abs(float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])) * 1e-6 * float(np.max(np.abs(np.asarray(sd.inp.tc))))
+        if edge_count(off.tau_lin, dt, shift, margin=1) > edge_count(off.tau_lin, dt):  # beyond the 3-row margin
+            return Retrim(shift)
     for c in force:  # estimates on request stay marked as such, whatever relinearisation added
         d = decisions.get(c)
         if d is not None and d.selected and not d.reason.startswith(FORCED):
@@ -564,7 +579,9 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     """Locate-name-refit for one sensor: :func:`sensor_pass` from the coarse offset; once more
     linearised at the refit time offset when one is named (linearised at 0, an offset of a sizeable
     fraction of a sample leaves a second-order remainder that other effects would otherwise absorb);
-    and once more without a time offset when it fails the promise there.
+    once more without the end rows a named clock skew moves past the reference's ends, where they
+    exceed the time offset's margin (:class:`Retrim`); and once more without a time offset when it
+    fails the promise there.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -580,11 +597,22 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         lag_hint: the coarse lag (samples) another sensor on the same clock found; taken as this
             sensor's candidate.
     """
-    out = sensor_pass(kind, sd, cfg, n_tests, Start(lag_hint=lag_hint), meas, force)
-    if isinstance(out, Relinearise):
-        out = sensor_pass(kind, sd, cfg, n_tests, Start(relin=(out.tau, out.decision)), meas, force)
+    start = Start(lag_hint=lag_hint)
+    out = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
+    for _ in range(2):  # each answer at most once: relinearised, retrimmed, in either order
+        if isinstance(out, Relinearise):
+            start = start._replace(lag_hint=None, relin=(out.tau, out.decision))
+        elif isinstance(out, Retrim):
+            start = start._replace(edge_shift=out.shift)
+        else:
+            break
+        out = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
     if isinstance(out, DropOffset):
-        res = sensor_pass(kind, sd, cfg, n_tests, Start(no_offset=True), meas, force)
-        assert isinstance(res, SensorResult)  # without a time offset no further pass is asked for
+        start = Start(no_offset=True, edge_shift=start.edge_shift)
+        res = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
+        if isinstance(res, Retrim):
+            res = sensor_pass(kind, sd, cfg, n_tests, start._replace(edge_shift=res.shift), meas, force)
+        assert isinstance(res, SensorResult)  # without a time offset, and retrimmed, no further pass is asked for
         return res._replace(decisions={**res.decisions, "time_offset": out.decision._asdict()}, warnings=res.warnings + [out.warning])
+    assert isinstance(out, SensorResult)
     return out
