@@ -10,7 +10,6 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from jaxcal.constants import G0
 from jaxcal.diagnose import effects as E
 from jaxcal.recording import Recording
 
@@ -71,12 +70,12 @@ def conceal_lever_arm_gyro(rec: Recording, r: np.ndarray, gyr_cal=None, acc_cal=
         acc_cal: optional :class:`~jaxcal.sensor.LinearCal` of ``acc``: the added force (g) enters
             its output as ``A^-1 add``.
     """
-    from jaxcal.diagnose.kinematics import derivative5
+    from jaxcal.diagnose.kinematics import derivative5, lever_force
 
     w = np.asarray(rec.gyr, np.float64) if gyr_cal is None else np.asarray(gyr_cal.apply(np.asarray(rec.gyr, np.float64)))
     dt = float(np.median(np.diff(rec.t)))
     r = np.asarray(r, np.float64)
-    add = (np.cross(derivative5(w, dt), r) + np.cross(w, np.cross(w, r))) / G0
+    add = lever_force(w, derivative5(w, dt), r)
     if acc_cal is not None:
         add = np.linalg.solve(np.asarray(acc_cal.A, np.float64), add.T).T
     elif rec.acc_unit == "LSB":

@@ -26,8 +26,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxcal.constants import G0
 from jaxcal.diagnose.core import Prepared, prepare
+from jaxcal.diagnose.kinematics import lever_force
 from jaxcal.recording import Recording
 
 __all__ = ["ALTERNATIVES", "GATE", "baseline_scales", "GateConfig", "GateResult", "SensorGate", "reference_gate", "report_gate", "check_reference"]
@@ -141,8 +141,7 @@ def _lever_matrix(prep: Prepared) -> np.ndarray | None:
         return None
     w = np.where(np.asarray(sd.valid, bool)[:, None], np.asarray(sd.y, float), 0.0)
     wd = np.gradient(w, float(prep.dt), axis=0)
-    # column k: M e_k, the lever-arm term of conceal_lever_arm_gyro for r = e_k
-    return np.stack([np.cross(wd, e) + np.cross(w, np.cross(w, e)) for e in np.eye(3)], 2) / G0
+    return np.stack([lever_force(w, wd, e) for e in np.eye(3)], 2)  # column k: the force for r = e_k
 
 
 def _stacked(x: np.ndarray, lever: np.ndarray | None) -> np.ndarray:

@@ -26,6 +26,7 @@ __all__ = [
     "smooth",
     "derivative",
     "derivative5",
+    "lever_force",
     "reference_from_pose",
     "reference_gap_mask",
 ]
@@ -97,6 +98,19 @@ def derivative5(x: np.ndarray, dt: float) -> np.ndarray:
     d = np.gradient(x, dt, axis=0)
     d[2:-2] = (x[:-4] - 8 * x[1:-3] + 8 * x[3:-1] - x[4:]) / (12 * dt)
     return d
+
+
+def lever_force(w: np.ndarray, wdot: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """The specific force (g) a point at ``r`` (m) from the centre of rotation adds:
+    ``(dw/dt x r + w x (w x r)) / g0`` (the numpy twin of the ``lever_arm`` step of
+    :mod:`jaxcal.diagnose.vocabulary`).
+
+    Args:
+        w: (N, 3) body rate (rad/s).
+        wdot: (N, 3) angular acceleration (rad/s^2).
+        r: (3,) lever arm (m).
+    """
+    return (np.cross(wdot, r) + np.cross(w, np.cross(w, r))) / G0
 
 
 def _gap_mask(bad: np.ndarray, half: int) -> np.ndarray:

@@ -50,9 +50,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from jaxcal import flags
-from jaxcal.constants import G0, SENSORS
+from jaxcal.constants import SENSORS
 from jaxcal.diagnose import effects as E
 from jaxcal.diagnose import vocabulary as V
+from jaxcal.diagnose.kinematics import lever_force
 from jaxcal.diagnose.vocabulary import InverseContext, invert_nonlinearity, unshift
 from jaxcal.flags import Flag
 from jaxcal.methods.base import (
@@ -239,11 +240,6 @@ def _derivative(w: np.ndarray, dt: float, slices: list[slice]) -> np.ndarray:
     return d
 
 
-def _lever(w: np.ndarray, wdot: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """``(dw/dt x r + w x (w x r)) / g0`` in g (as :func:`jaxcal.diagnose.effects.sensor_input`)."""
-    return (np.cross(wdot, r) + np.cross(w, np.cross(w, r))) / G0
-
-
 def _need(rec: Recording, field: str, why: str, plural: bool = False) -> np.ndarray:
     v = getattr(rec, field)
     if v is None:
@@ -305,7 +301,7 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
         if G is not None:
             gyr = xin["gyr"] - acc @ G.T
         if r is not None:
-            acc = xin["acc"] - _lever(gyr, _derivative(gyr, dt, slices), r)
+            acc = xin["acc"] - lever_force(gyr, _derivative(gyr, dt, slices), r)
     if acc is not None:
         out["acc_cal"] = acc
     if gyr is not None:
