@@ -597,22 +597,19 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
         lag_hint: the coarse lag (samples) another sensor on the same clock found; taken as this
             sensor's candidate.
     """
-    start = Start(lag_hint=lag_hint)
+    start, dropped = Start(lag_hint=lag_hint), None
     out = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
-    for _ in range(2):  # each answer at most once: relinearised, retrimmed, in either order
+    for _ in range(3):  # each answer comes at most once (the start it sets rules it out): four passes at most
+        if isinstance(out, SensorResult):
+            break
         if isinstance(out, Relinearise):
             start = start._replace(lag_hint=None, relin=(out.tau, out.decision))
         elif isinstance(out, Retrim):
             start = start._replace(edge_shift=out.shift)
-        else:
-            break
+        else:  # DropOffset: without a time offset, no Relinearise or DropOffset can follow
+            start, dropped = Start(no_offset=True, edge_shift=start.edge_shift), out
         out = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
-    if isinstance(out, DropOffset):
-        start = Start(no_offset=True, edge_shift=start.edge_shift)
-        res = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
-        if isinstance(res, Retrim):
-            res = sensor_pass(kind, sd, cfg, n_tests, start._replace(edge_shift=res.shift), meas, force)
-        assert isinstance(res, SensorResult)  # without a time offset, and retrimmed, no further pass is asked for
-        return res._replace(decisions={**res.decisions, "time_offset": out.decision._asdict()}, warnings=res.warnings + [out.warning])
-    assert isinstance(out, SensorResult)
-    return out
+    assert isinstance(out, SensorResult), out
+    if dropped is None:
+        return out
+    return out._replace(decisions={**out.decisions, "time_offset": dropped.decision._asdict()}, warnings=out.warnings + [dropped.warning])
