@@ -14,17 +14,21 @@ Every function here is pure, jit-able and vmappable, and exact to floating-point
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
 from jaxcal.arrays import Array
+from jaxcal.mat3 import matmul3, matvec3, transpose3
 
 __all__ = [
     "hat",
     "vee",
     "exp_so3",
+    "right_jacobian_so3",
     "rotation_from_rate",
     "quat_from_matrix",
     "matrix_from_quat",
@@ -207,13 +211,78 @@ def total_rotation(w: Float[Array, "N 3"], dt: float | Float[Array, ""]) -> Floa
     return compose(rotation_from_rate(w, dt))
 
 
+def right_jacobian_so3(v: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
+    """Right Jacobian of :func:`exp_so3`: ``Exp(v + d) = Exp(v) Exp(J_r(v) d) + O(|d|^2)``.
+
+    ``J_r(v) = I - (1 - cos t)/t^2 [v]x + (t - sin t)/t^3 [v]x^2`` with ``t = |v|`` (Sola, Deray,
+    Atchuthan, "A micro Lie theory for state estimation in robotics", 2018, eq. 143); the Taylor
+    series below the same small angle as :func:`exp_so3`, so it is finite (and ``I``) at ``v = 0``.
+    """
+    theta_sq = jnp.sum(v * v, axis=-1)
+    a, b = _exp_coefficients(theta_sq)
+    small = theta_sq < _SMALL_ANGLE_SQ
+    safe_sq = jnp.where(small, 1.0, theta_sq)
+    c = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0 + theta_sq**2 / 5040.0, (1.0 - a) / safe_sq)
+    k = hat(v)
+    eye = jnp.eye(3, dtype=v.dtype)
+    return eye - b[..., None, None] * k + c[..., None, None] * (k @ k)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(2, 3))
+def _propagate(f0: Float[Array, "3"], phi: Float[Array, "N 3"], unroll: int, elementwise: bool) -> Float[Array, "N+1 3"]:
+    """``[f_0, ..., f_N]`` with ``f_{n+1} = Exp(phi_n)^T f_n`` (one compiled loop of 3x3 products)."""
+    def step(f, r):
+        f_next = matvec3(transpose3(r), f) if elementwise else r.T @ f
+        return f_next, f_next
+
+    _, fs = jax.lax.scan(step, f0, exp_so3(phi), unroll=unroll)
+    return jnp.concatenate([f0[None], fs], axis=0)
+
+
+@_propagate.defjvp
+def _propagate_jvp(unroll: int, elementwise: bool, primals: tuple, tangents: tuple) -> tuple[Array, Array]:
+    """The tangent in closed form, with no loop over the tangents.
+
+    With ``Q_n = (Exp(phi_0) ... Exp(phi_{n-1}))^T`` (so ``f_n = Q_n f_0``) and
+    ``d Exp(phi)^T g = [Exp(phi)^T g]x J_r(phi) d phi``, the linear recursion
+    ``df_{n+1} = Exp(phi_n)^T df_n + [f_{n+1}]x J_r(phi_n) dphi_n`` solves to
+    ``df_n = Q_n (df_0 + [f_0]x sum_{k<n} Q_{k+1}^T J_r(phi_k) dphi_k)`` (``Q^T [Q a]x = [a]x Q^T``).
+    The primal is the loop's own output, bit for bit; ``Q_n`` and the matrices ``Q_{k+1}^T J_r`` do
+    not depend on the tangents, so under ``jax.jacfwd`` they are computed once and the batch of
+    tangents meets only a cumulative sum and elementwise 3x3 products. (JAX's own rule carries every
+    tangent through all ``N`` steps of the loop: 1.7x slower for the ``affine`` filter's 23 columns.)
+    """
+    f0, phi = primals
+    df0, dphi = tangents
+
+    out = _propagate(f0, phi, unroll, elementwise)
+
+    def step(q, r_t):
+        q_next = matmul3(r_t, q)
+        return q_next, q_next
+
+    # Q_1..Q_N (Q_{n+1} = Exp(phi_n)^T Q_n). Measured in the filter on 2 CPU cores: a loop beats a
+    # parallel prefix (associative_scan) here, and a cumulative sum beats one by 10-15 %.
+    _, qs = jax.lax.scan(step, jnp.eye(3, dtype=phi.dtype), transpose3(exp_so3(phi)), unroll=unroll)
+    m = matmul3(transpose3(qs), right_jacobian_so3(phi))  # Q_{k+1}^T J_r(phi_k)
+    s = jnp.cumsum(matvec3(m, dphi), axis=0)  # sum_{k<n}, n = 1..N
+    s = df0[None] + jnp.cross(f0[None], s)
+    dfs = matvec3(qs, s)
+    return out, jnp.concatenate([df0[None], dfs], axis=0)
+
+
 def propagate_specific_force(
-    f0: Float[Array, "3"], w: Float[Array, "N 3"], dt: float | Float[Array, ""], unroll: int = 1
+    f0: Float[Array, "3"], w: Float[Array, "N 3"], dt: float | Float[Array, ""], unroll: int = 1,
+    elementwise: bool = False,
 ) -> Float[Array, "N+1 3"]:
     """Body-frame specific force along a pure rotation: ``f_{n+1} = Exp(w_n dt)^T f_n``.
 
     Returns ``[f_0, f_1, ..., f_N]``. This is the physical convention; the thesis's eq. 4.5
     applies ``R_n`` instead of ``R_n^T``.
+
+    Differentiable in ``f0``, ``w`` and ``dt`` with a closed-form tangent (:func:`_propagate_jvp`):
+    ``jax.jacfwd`` over many parameters costs a cumulative sum, not one pass of the loop per
+    parameter (the ``online`` filter's Gauss-Newton Jacobian, 14 or 23 columns).
 
     Args:
         f0: (3,) body-frame specific force at the start (g).
@@ -222,13 +291,11 @@ def propagate_specific_force(
         unroll: (static) steps per iteration of the compiled loop (``lax.scan``'s ``unroll``): the
             same products in the same order, so the result is bit-identical; fewer loop iterations
             cost less where each step is a 3x3 product (:mod:`jaxcal.online` streams with 4).
+        elementwise: (static) each step's product as three multiply-adds (:mod:`jaxcal.mat3`) instead
+            of a dot: fewer kernels per step on the CPU, but not bit-identical to the dot, so
+            ``False`` (the simulations' data stay as they were) unless speed matters more.
     """
-    def step(f, r):
-        f_next = r.T @ f
-        return f_next, f_next
-
-    _, fs = jax.lax.scan(step, f0, rotation_from_rate(w, dt), unroll=unroll)
-    return jnp.concatenate([f0[None], fs], axis=0)
+    return _propagate(f0, w * dt, unroll, elementwise)
 
 
 def integrate_orientation(
