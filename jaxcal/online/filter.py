@@ -16,6 +16,7 @@ import numpy as np
 from jaxtyping import Float, Int
 
 from jaxcal.arrays import Array
+from jaxcal.mat3 import inv3, matvec3
 from jaxcal.rotation import propagate_specific_force
 from jaxcal.sensor import Affine, Diag, LinearCal
 
@@ -37,6 +38,8 @@ KINDS = ("diag", "affine")
 # Rotation steps per iteration of the sequence propagation's compiled loop (static; bit-identical for any
 # value); benchmarks/online_unroll.py times the choice (measured so far only on another machine's CPU).
 PROPAGATE_UNROLL = 4
+# The propagation's 3x3 products as elementwise multiply-adds (static; rotation.propagate_specific_force).
+PROPAGATE_ELEMENTWISE = True
 
 
 # ----------------------------------------------------------------------------------------------
@@ -112,13 +115,13 @@ def _per_param(lay: _Layout, scale: Any, cross: Any, acc_bias: Any, gyr_bias: An
 def _calibrate_acc(lay: _Layout, theta: Float[Array, " Q"], u: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Calibrated specific force (g) of spec-converted accelerometer readings ``u``."""
     c = _unpack(lay, theta)
-    return u @ c.K_a.T - c.e_a
+    return matvec3(c.K_a, u) - c.e_a
 
 
 def _calibrate_gyr(lay: _Layout, theta: Float[Array, " Q"], u: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Calibrated body rate (rad/s) of spec-converted gyroscope readings ``u``."""
     c = _unpack(lay, theta)
-    return u @ c.K_g.T - c.e_g
+    return matvec3(c.K_g, u) - c.e_g
 
 
 # ----------------------------------------------------------------------------------------------
@@ -135,6 +138,30 @@ def tangent_basis(f: Float[Array, "3"]) -> Float[Array, "3 2"]:
     return jnp.stack([b1, b2], axis=1)
 
 
+def _carried_gravity(
+    lay: _Layout,
+    theta: Float[Array, " Q"],
+    delta: Float[Array, "2"],
+    f0_ref: Float[Array, "3"],
+    u_gyr: Float[Array, "N 3"],
+    mask: Float[Array, " N"],
+    dt: float | Float[Array, ""],
+) -> Float[Array, "N 3"]:
+    """``Phi_n(w_c)^T f_0``: gravity from ``f_0 = normalise(f0_ref + B delta)`` carried by the
+    calibrated gyroscope (depends on the gyroscope's entries of ``theta`` and ``delta`` only)."""
+    w_c = _calibrate_gyr(lay, theta, u_gyr) * mask[:, None]
+    f0 = f0_ref + tangent_basis(f0_ref) @ delta
+    f0 = f0 / jnp.linalg.norm(f0)
+    return propagate_specific_force(f0, w_c[:-1], dt, unroll=PROPAGATE_UNROLL, elementwise=PROPAGATE_ELEMENTWISE)
+
+
+def _readings_of(lay: _Layout, theta: Float[Array, " Q"], f: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
+    """Noise-free spec-converted accelerometer readings ``K_a^{-1} (f + e_a)`` of specific force ``f``
+    (depends on the accelerometer's entries of ``theta`` only)."""
+    c = _unpack(lay, theta)
+    return matvec3(inv3(c.K_a), f + c.e_a)
+
+
 def _predict_acc_readings(
     lay: _Layout,
     theta: Float[Array, " Q"],
@@ -146,12 +173,24 @@ def _predict_acc_readings(
 ) -> Float[Array, "N 3"]:
     """Noise-free spec-converted accelerometer readings ``K_a^{-1} (Phi_n(w_c)^T f_0 + e_a)`` of one
     sequence: gravity from ``f_0 = normalise(f0_ref + B delta)`` carried by the calibrated gyro."""
-    c = _unpack(lay, theta)
-    w_c = _calibrate_gyr(lay, theta, u_gyr) * mask[:, None]
-    f0 = f0_ref + tangent_basis(f0_ref) @ delta
-    f0 = f0 / jnp.linalg.norm(f0)
-    f = propagate_specific_force(f0, w_c[:-1], dt, unroll=PROPAGATE_UNROLL)
-    return jnp.linalg.solve(c.K_a, (f + c.e_a).T).T
+    return _readings_of(lay, theta, _carried_gravity(lay, theta, delta, f0_ref, u_gyr, mask, dt))
+
+
+def _weighted_residuals(
+    u_acc: Float[Array, "N 3"],
+    u_pred: Float[Array, "N 3"],
+    mask: Float[Array, " N"],
+    weight: Float[Array, " N"] | None = None,
+    weight_t: Float[Array, " N"] | None = None,
+) -> Float[Array, " 3*N"]:
+    """``u_acc - u_pred`` weighed as :func:`_sequence_residuals` says, flattened."""
+    w = mask if weight is None else jnp.sqrt(weight) * mask
+    r = u_acc - u_pred
+    if weight_t is None:
+        return (r * w[:, None]).reshape(-1)
+    d = u_pred / jnp.linalg.norm(u_pred, axis=-1, keepdims=True)
+    r_along = jnp.sum(r * d, axis=-1, keepdims=True) * d
+    return (r_along * w[:, None] + (r - r_along) * (jnp.sqrt(weight_t) * mask)[:, None]).reshape(-1)
 
 
 def _sequence_residuals(
@@ -186,13 +225,41 @@ def _sequence_residuals(
     pulls the gyroscope scale off by several standard deviations.
     """
     u_pred = _predict_acc_readings(lay, theta, delta, f0_ref, u_gyr, mask, dt)
-    w = mask if weight is None else jnp.sqrt(weight) * mask
-    r = u_acc - u_pred
-    if weight_t is None:
-        return (r * w[:, None]).reshape(-1)
-    d = u_pred / jnp.linalg.norm(u_pred, axis=-1, keepdims=True)
-    r_along = jnp.sum(r * d, axis=-1, keepdims=True) * d
-    return (r_along * w[:, None] + (r - r_along) * (jnp.sqrt(weight_t) * mask)[:, None]).reshape(-1)
+    return _weighted_residuals(u_acc, u_pred, mask, weight, weight_t)
+
+
+def _residuals_and_jacobian(
+    lay: _Layout,
+    z: Float[Array, " P"],
+    f0_ref: Float[Array, "3"],
+    u_acc: Float[Array, "N 3"],
+    u_gyr: Float[Array, "N 3"],
+    mask: Float[Array, " N"],
+    dt: float | Float[Array, ""],
+    weight: Float[Array, " N"] | None = None,
+    weight_t: Float[Array, " N"] | None = None,
+) -> tuple[Float[Array, " 3*N"], Float[Array, "3*N P"]]:
+    """:func:`_sequence_residuals` at ``z = (theta, delta)`` and its Jacobian, by the chain rule
+    through the carried gravity ``f``: the accelerometer's entries of ``theta`` (the layout's first
+    ones) do not move ``f``, so only the gyroscope's entries and ``delta`` are pushed through the
+    propagation (8 of 14 columns for ``diag``, 14 of 23 for ``affine``), and all columns through the
+    cheap reading model. Equal to ``jax.jacfwd`` of :func:`_sequence_residuals` to rounding."""
+    k = lay.sg.start  # theta = (accelerometer entries [:k], gyroscope entries [k:]), then delta
+    p = lay.n
+    za, zg = z[:k], z[k:]
+
+    def carried(zg_):
+        theta = jnp.concatenate([za, zg_[: p - k]])
+        return _carried_gravity(lay, theta, zg_[p - k:], f0_ref, u_gyr, mask, dt)
+
+    def residuals(za_, f):
+        theta = jnp.concatenate([za_, zg[: p - k]])
+        return _weighted_residuals(u_acc, _readings_of(lay, theta, f), mask, weight, weight_t)
+
+    df, f = jax.jacfwd(lambda zg_: (carried(zg_),) * 2, has_aux=True)(zg)  # (N, 3, P - k), (N, 3)
+    j_a, r = jax.jacfwd(lambda za_: (residuals(za_, f),) * 2, has_aux=True)(za)
+    j_g = jax.vmap(lambda d: jax.jvp(lambda f_: residuals(za, f_), (f,), (d,))[1], in_axes=-1, out_axes=-1)(df)
+    return r, jnp.concatenate([j_a, j_g], axis=1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -317,8 +384,7 @@ def _update(
         return w_obs * jnp.sum(res(z) ** 2) + d @ (info_p + info_0) @ d
 
     def normal_eq(z):
-        r = res(z)
-        j = jax.jacfwd(res)(z)
+        r, j = _residuals_and_jacobian(lay, z, f0_ref, u_acc, u_gyr, mask, dt, weight, weight_t)
         h = w_obs * (j.T @ j)
         g = w_obs * (j.T @ r)
         h = h.at[:p, :p].add(info_p + info_0)
