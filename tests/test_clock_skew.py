@@ -109,7 +109,9 @@ def test_rows_a_skew_moves_past_the_reference_are_not_fitted():
     does not hold; they are refitted without (``Retrim``), and both estimates lie within 3 standard
     errors. Before, the last 3.75 rows were fitted to the stretch's reflection and the gyroscope
     read 2484.9 ppm (now 2501.0); in ``results/discrepancy.md``'s 500 ppm, 20-minute case the
-    gyroscope's 498.2 +- 0.9 became 499.7 +- 0.9."""
+    gyroscope's 498.2 +- 0.9 became 499.7 +- 0.9. That pass is linearised at the named skew (a
+    skew this large leaves a second-order remainder at 0), so its decision says so and the
+    held-out path's first step, from the baseline at zero skew to the skew, falls."""
     from jaxcal.diagnose.core import diagnose_banded
 
     ppm, minutes = 2500.0, 2.0
@@ -122,6 +124,27 @@ def test_rows_a_skew_moves_past_the_reference_are_not_fitted():
         assert r.selected == ["clock_skew"], (s, r.selected)
         k = E.slot(s, "clock_skew").start  # the report's params.s and stderr.s (ppm)
         assert abs(r.final_all.theta[k] - ppm) < 3 * r.final_all.se_theta[k], (s, r.final_all.theta[k], r.final_all.se_theta[k])
+        assert "relinearised at the refit clock skew" in r.decisions["clock_skew"]["reason"], r.decisions["clock_skew"]
+        assert r.heldout_path[1] < r.heldout_path[0], (s, r.heldout_path)
+
+
+def test_a_skew_and_a_time_offset_both_at_the_linearisation_point():
+    """The same 2500 ppm rig with the gyroscope 60 ms late: its time offset and its clock skew are
+    both named, and the pass that reports them is linearised at both. The held-out path starts from
+    the baseline at zero, adds the offset (the model linearised at the offset alone) and then the
+    skew: each step falls. Measured: 59.995 +- 0.005 ms and 2500.12 +- 0.14 ppm; path 0.2265 ->
+    0.2176 -> 0.00101 rad/s (before the skew was linearised at: 2500.95 +- 13.6 ppm, 0.0746 rad/s)."""
+    from jaxcal.diagnose.conceal import conceal_shift
+    from jaxcal.diagnose.core import diagnose_banded
+
+    _, res = diagnose_banded(conceal_shift(_rig(2500.0, 2.0), 0.06, ("gyr",)), "diag")
+    r = res["gyr"]
+    assert r.selected[:2] == ["time_offset", "clock_skew"], r.selected
+    for name, truth in (("time_offset", 0.06), ("clock_skew", 2500.0)):
+        k = E.slot("gyr", name).start
+        assert abs(r.final_all.theta[k] - truth) < 3 * r.final_all.se_theta[k], (name, r.final_all.theta[k], r.final_all.se_theta[k])
+        assert "relinearised at the refit" in r.decisions[name]["reason"], r.decisions[name]
+    assert all(b < a for a, b in zip(r.heldout_path, r.heldout_path[1:])), r.heldout_path
 
 
 def _skewed_mocap_rig(ppm: float, offset: float, t_end: float = 120.0, fs: float = 100.0, seed: int = 5):

@@ -26,12 +26,14 @@ class Start(NamedTuple):
     clock found; ``relin`` ``(tau, decision)``: linearised at a refit time offset named by an
     earlier pass; ``no_offset``: the time offset dropped from the candidates (it did not lower the
     held-out rms); ``edge_shift`` (s): how far a clock skew named by an earlier pass moves the
-    recording's ends on the reference's clock, trimmed from the fitted rows as well."""
+    recording's ends on the reference's clock, trimmed from the fitted rows as well; ``skew_lin``
+    ``(ppm, decision)``: linearised at that clock skew (``None``: at 0)."""
 
     lag_hint: int | None = None
     relin: tuple[float, Decision] | None = None
     no_offset: bool = False
     edge_shift: float = 0.0
+    skew_lin: tuple[float, Decision] | None = None
 
 
 class Offset(NamedTuple):
@@ -91,6 +93,8 @@ def coarse_offset(kind: str, sd: SensorData, cfg: SelectConfig, level: float, st
             tau_lin = _refine_tau(kind, sd, tau_c, ars, rows, dt)
             pre.append("time_offset")
             warnings.append(f"{s}: coarse search found a large time offset of {tau_lin * 1e3:.1f} ms ({lag} samples, refined to a fraction of a sample); refined below")
+    if start.skew_lin is not None and "clock_skew" in cands:
+        pre.append("clock_skew")  # after the time offset: the held-out path adds the linearisation point's effects first
     pre += [c for c in force if c not in pre and c in cands]
     return Offset(tau_lin, coarse, cands, pre, warnings)
 
@@ -100,9 +104,13 @@ def edge_count(tau: float, dt: float, shift: float = 0.0, margin: int = 3) -> in
     return int(np.ceil((abs(tau) + shift) / dt)) + margin
 
 
-def theta_with_tau(sensor: str, tau: float) -> np.ndarray:
+def theta_with_tau(sensor: str, tau: float, skew: float = 0.0) -> np.ndarray:
+    """The effect parameters of a linearisation point: time offset ``tau`` (s) and clock skew
+    ``skew`` (ppm), every other effect at zero."""
     th = np.zeros(E.N_THETA[sensor])
     th[E.slot(sensor, "time_offset").start] = tau
+    if skew != 0.0:
+        th[E.slot(sensor, "clock_skew").start] = skew
     return th
 
 

@@ -14,9 +14,12 @@ residual through the :class:`~jaxcal.diagnose.prepare.Prepared` it builds):
    printed held-out rms and lies in its plausible range) and the joint refit with intervals.
 
 :func:`sensor_pass` runs them once from a :class:`Start`; it answers :class:`Relinearise` (a time
-offset was named far from the linearisation point: run again linearised there) or
-:class:`DropOffset` (the time offset did not keep the promise: run again without it), and
-:func:`diagnose_sensor` follows those answers (at most three passes; no recursion).
+offset was named far from the linearisation point: run again linearised there), :class:`Retrim` (a
+clock skew was named that moves the ends past the reference's: run again without those rows,
+linearised at that skew), :class:`Unskew` (that skew then did not keep the promise: run again
+linearised at zero) or :class:`DropOffset` (the time offset did not keep the promise: run again
+without it), and :func:`diagnose_sensor` follows those answers (each at most once: five passes at
+most; no recursion).
 """
 
 from __future__ import annotations
@@ -198,9 +201,19 @@ class Retrim(NamedTuple):
     """A pass's answer: a clock skew was named whose stretch moves the recording's ends by
     ``shift`` (s) on the reference's clock, more than the rows trimmed for the time offset cover:
     those rows saw reference times the reference does not hold (the stretch reflects there: errors
-    of up to 0.13 g and 0.8 rad/s in the last 8 rows at 500 ppm over 20 min); run again without them."""
+    of up to 0.13 g and 0.8 rad/s in the last 8 rows at 500 ppm over 20 min); run again without them,
+    linearised at the named skew ``skew`` (ppm; ``decision``: its decision). A skew that large leaves
+    a second-order remainder at 0 (0.04 g rms at 500 ppm over 20 min) that other effects would
+    otherwise absorb (a spurious accelerometer ``scale_nonlinearity``)."""
 
     shift: float
+    skew: float = 0.0
+    decision: Decision | None = None
+
+
+class Unskew(NamedTuple):
+    """A pass's answer: the clock skew at which it was linearised did not keep the promise (or was
+    not named); run again linearised at 0, its end rows still trimmed, and let that pass decide."""
 
 
 class DropOffset(NamedTuple):
@@ -214,18 +227,20 @@ class DropOffset(NamedTuple):
 # ----------------------------------------------------------------------------- stages
 
 
-def linearise(kind: str, sd: SensorData, tau_lin: float, edge_shift: float = 0.0) -> Linearised:
-    """Stage 2: the baseline fitted at the time offset ``tau_lin`` on the rows its shift (and a
-    named clock skew's ``edge_shift``) leaves trustworthy, and the regressors of every effect there.
+def linearise(kind: str, sd: SensorData, tau_lin: float, edge_shift: float = 0.0, skew_lin: float = 0.0) -> Linearised:
+    """Stage 2: the baseline fitted at the time offset ``tau_lin`` (and clock skew ``skew_lin``) on
+    the rows its shift (and a named clock skew's ``edge_shift``) leaves trustworthy, and the
+    regressors of every effect there.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
         sd: the sensor's prepared data.
         tau_lin: the linearisation offset (s).
         edge_shift: a clock skew's shift of the ends (s, :class:`Retrim`).
+        skew_lin: the linearisation clock skew (ppm, :class:`Retrim`).
     """
     fit_rows = edge_rows(sd.valid, tau_lin, float(sd.inp.dt), edge_shift)
-    theta_lin = theta_with_tau(sd.sensor, tau_lin)
+    theta_lin = theta_with_tau(sd.sensor, tau_lin, skew_lin)
     _, beta = baseline_resid(kind, sd, theta_lin, fit_rows)
     x, z = linearize(kind, sd, beta, theta_lin)
     return Linearised(fit_rows, theta_lin, beta, x, z)
@@ -302,6 +317,9 @@ def select_effects(kind: str, sd: SensorData, cfg: SelectConfig, level: float, o
     if start.relin is not None:
         d = start.relin[1]
         decisions["time_offset"] = d._replace(reason=d.reason + f"; model relinearised at the refit offset {off.tau_lin * 1e3:.2f} ms and the other effects reselected")
+    if start.skew_lin is not None and "clock_skew" in off.preselected:
+        d = start.skew_lin[1]
+        decisions["clock_skew"] = d._replace(reason=d.reason + f"; model relinearised at the refit clock skew {start.skew_lin[0]:.2f} ppm and the other effects reselected")
     return Selection(ars, S, selected, decisions, th, cols, full, resid, fit_rows, sat_info)
 
 
@@ -399,21 +417,44 @@ def _attenuation_warnings(s: str, c: str, att: np.ndarray, infl: np.ndarray) -> 
     return out
 
 
-def _heldout_paths(kind: str, sd: SensorData, sel: Selection, tau_lin: float, order: list[str]) -> tuple[list[float], list[float]]:
-    """The held-out rms (GLS and OLS fits) as the effects of ``order`` are added one by one; with a
-    linearisation offset, the baseline's at zero offset first."""
+def _at_point(sensor: str, theta_lin: np.ndarray) -> list[str]:
+    """The effects a linearisation point holds away from zero (a time offset, a clock skew), in the
+    order they enter the selection (:func:`~jaxcal.diagnose.offset.coarse_offset`)."""
+    out = []
+    for n in ("time_offset", "clock_skew"):
+        try:
+            sl = E.slot(sensor, n)
+        except KeyError:
+            continue
+        if np.any(theta_lin[sl.start : sl.start + sl.size] != 0.0):
+            out.append(n)
+    return out
+
+
+def _heldout_paths(kind: str, sd: SensorData, sel: Selection, theta_lin: np.ndarray, order: list[str]) -> tuple[list[float], list[float]]:
+    """The held-out rms (GLS and OLS fits) as the effects of ``order`` are added one by one. The
+    system is linearised at ``theta_lin``, so it holds the point's effects (a time offset, a clock
+    skew; first in ``order``) whatever columns are fitted: the steps before all of them are in are
+    taken from the model linearised at the point without the ones not yet added (the baseline at
+    zero first)."""
     s, S = sd.sensor, sel.system
     path = heldout_rms_path(S, kind, s, order)
     path_ols = heldout_rms_path(S, kind, s, order, fit="ols")
-    if tau_lin != 0.0:
-        # baseline held-out rms at zero time offset (the path starts at the linearisation point)
-        # linearised at the zero-offset baseline fit: a random-walk noise model annihilates the bias
+    point = _at_point(s, theta_lin)
+    # the point's effects come first (preselected); one removed as implausible (a time offset) leaves
+    # only the baseline at zero to replace, as before clock skews were linearised at
+    for k in range(len(point) if order[: len(point)] == point else min(len(point), 1)):
+        theta_k = theta_lin.copy()
+        for n in point[k:]:
+            sl = E.slot(s, n)
+            theta_k[sl.start : sl.start + sl.size] = 0.0
+        # linearised at the baseline fitted there: a random-walk noise model annihilates the bias
         # columns, so starting from unit scale / zero bias would leave the whole bias in the residual
-        _, beta_z = baseline_resid(kind, sd, np.zeros(E.N_THETA[s]), sel.fit_rows)
-        xb, zb = linearize_baseline(kind, sd, beta_z, np.zeros(E.N_THETA[s]))
-        Sb = build_system(xb, zb, sel.ars, sel.fit_rows, sd.block)
-        path[0] = heldout_rms_path(Sb, kind, s, [])[0]
-        path_ols[0] = heldout_rms_path(Sb, kind, s, [], fit="ols")[0]
+        _, beta_k = baseline_resid(kind, sd, theta_k, sel.fit_rows)
+        xk, zk = linearize_baseline(kind, sd, beta_k, theta_k) if k == 0 else linearize(kind, sd, beta_k, theta_k)
+        Sk = build_system(xk, zk, sel.ars, sel.fit_rows, sd.block)
+        path[k] = heldout_rms_path(Sk, kind, s, order[:k])[-1]
+        path_ols[k] = heldout_rms_path(Sk, kind, s, order[:k], fit="ols")[-1]
     return path, path_ols
 
 
@@ -433,14 +474,15 @@ def _band_weak(s: str, final_all: RefitResult, info: dict, force: tuple[str, ...
 
 def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: Selection, det: Detectability,
                  force: tuple[str, ...] = (), pool: tuple[str, ...] = (), level: float = 1.0,
-                 huber: float | None = 3.0) -> Named | DropOffset:
+                 huber: float | None = 3.0) -> Named | DropOffset | Unskew:
     """Stage 5, the promise of the report: every named effect lowers the physical held-out rms that
     the report prints, step by step (one that does not is demoted to ``rejected`` with a warning that
     says where the residual lives), and no named estimate of the joint refit lies outside its
     plausible range (:data:`jaxcal.diagnose.effects.PLAUSIBLE_RANGE`; outside, it is a
     misspecification warning). Effects in ``force`` are estimates on request, not gated.
     A time offset that fails the promise at a non-zero linearisation point answers
-    :class:`DropOffset`: the model is linearised at that offset, so the pass starts again without.
+    :class:`DropOffset`: the model is linearised at that offset, so the pass starts again without;
+    a clock skew at the linearisation point that is not named answers :class:`Unskew` alike.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -466,8 +508,9 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         if not d.selected and d.reason.startswith("whitened test passes"):
             warnings.append(f"{s} {name}: significant in the whitened test (log10 p {d.log10_p:.1f}) but the physical held-out rms "
                             f"does not fall (change {d.heldout_rms_change:+.3g} {unit}), so it is not named; the residual lives {where_text}")
+    skew_at_point = "clock_skew" in _at_point(s, lin.theta_lin)
     while True:
-        path, path_ols = _heldout_paths(kind, sd, sel, tau_lin, order)
+        path, path_ols = _heldout_paths(kind, sd, sel, lin.theta_lin, order)
         worse = [k for k in range(len(order)) if order[k] not in force and not path[k + 1] < path[k]]
         if worse:
             k = worse[0]
@@ -477,6 +520,8 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
                     f"({path[k]:.5g} -> {path[k + 1]:.5g} {unit}), so it is not named; the residual lives {where_text}")
             if name == "time_offset" and tau_lin != 0.0:
                 return DropOffset(_demote(decisions[name], why), warn)
+            if name == "clock_skew" and skew_at_point:
+                return Unskew()
             decisions[name] = _demote(decisions[name], why)
             warnings.append(warn)
             continue
@@ -485,6 +530,8 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         bad = [b for b in bad if b[0] > 1.0]
         if bad:
             ratio, name = max(bad)
+            if name == "clock_skew" and skew_at_point:
+                return Unskew()
             order.remove(name)
             lim = E.PLAUSIBLE_RANGE[(name, s)]
             est = E.params_from_theta(s, name, final_all.theta)
@@ -497,6 +544,8 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         weak = _band_weak(s, final_all, bands, force, level)
         if weak:
             name = weak[0]
+            if name == "clock_skew" and skew_at_point:
+                return Unskew()
             order.remove(name)
             sd_b = np.sqrt(np.asarray(bands[name]["tau2"]))
             decisions[name] = _demote(decisions.get(name), f"not significant once the disagreement of its frequency bands is counted "
@@ -525,9 +574,9 @@ def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, ord
 
 
 def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, start: Start = Start(),
-                meas: E.Inputs | None = None, force: tuple[str, ...] = ()) -> SensorResult | Relinearise | Retrim | DropOffset:
+                meas: E.Inputs | None = None, force: tuple[str, ...] = ()) -> SensorResult | Relinearise | Retrim | DropOffset | Unskew:
     """Stages 1-5 once from ``start``: the :class:`SensorResult`, or the answer that another pass
-    is needed (:class:`Relinearise`, :class:`Retrim`, :class:`DropOffset`).
+    is needed (:class:`Relinearise`, :class:`Retrim`, :class:`DropOffset`, :class:`Unskew`).
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -541,11 +590,12 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     """
     level = cfg.alpha / n_tests
     off = coarse_offset(kind, sd, cfg, level, start, force)
-    lin = linearise(kind, sd, off.tau_lin, start.edge_shift)
+    skew_lin = start.skew_lin[0] if start.skew_lin is not None and "clock_skew" in off.preselected else 0.0
+    lin = linearise(kind, sd, off.tau_lin, start.edge_shift, skew_lin)
     sel = select_effects(kind, sd, cfg, level, off, lin, start, force)
     det = detectability(kind, sd, cfg, level, off, lin, sel, meas)
     named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level, cfg.huber)
-    if isinstance(named, DropOffset):
+    if isinstance(named, (DropOffset, Unskew)):
         return named
     order, final_all, decisions = named.order, named.final_all, dict(named.decisions)
     if start.relin is None and "time_offset" in order:
@@ -557,7 +607,9 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
         dt = float(sd.inp.dt)
         shift = abs(float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])) * 1e-6 * float(np.max(np.abs(np.asarray(sd.inp.tc))))
         if edge_count(off.tau_lin, dt, shift, margin=1) > edge_count(off.tau_lin, dt):  # beyond the 3-row margin
-            return Retrim(shift)
+            skew = float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])
+            d0 = decisions["clock_skew"]
+            return Retrim(shift, skew, d0 if isinstance(d0, Decision) else Decision(**d0))
     for c in force:  # estimates on request stay marked as such, whatever relinearisation added
         d = decisions.get(c)
         if d is not None and d.selected and not d.reason.startswith(FORCED):
@@ -580,8 +632,9 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     linearised at the refit time offset when one is named (linearised at 0, an offset of a sizeable
     fraction of a sample leaves a second-order remainder that other effects would otherwise absorb);
     once more without the end rows a named clock skew moves past the reference's ends, where they
-    exceed the time offset's margin (:class:`Retrim`); and once more without a time offset when it
-    fails the promise there.
+    exceed the time offset's margin, linearised at that skew (:class:`Retrim`); once more linearised at
+    a zero skew if the skew then fails the promise (:class:`Unskew`); and once more without a time
+    offset when it fails the promise there.
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -599,15 +652,17 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     """
     start, dropped = Start(lag_hint=lag_hint), None
     out = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
-    for _ in range(3):  # each answer comes at most once (the start it sets rules it out): four passes at most
+    for _ in range(4):  # each answer comes at most once (the start it sets rules it out): five passes at most
         if isinstance(out, SensorResult):
             break
         if isinstance(out, Relinearise):
             start = start._replace(lag_hint=None, relin=(out.tau, out.decision))
         elif isinstance(out, Retrim):
-            start = start._replace(edge_shift=out.shift)
+            start = start._replace(edge_shift=out.shift, skew_lin=(out.skew, out.decision))
+        elif isinstance(out, Unskew):  # the end rows stay trimmed (edge_shift), so no Retrim can follow
+            start = start._replace(skew_lin=None)
         else:  # DropOffset: without a time offset, no Relinearise or DropOffset can follow
-            start, dropped = Start(no_offset=True, edge_shift=start.edge_shift), out
+            start, dropped = Start(no_offset=True, edge_shift=start.edge_shift, skew_lin=start.skew_lin), out
         out = sensor_pass(kind, sd, cfg, n_tests, start, meas, force)
     assert isinstance(out, SensorResult), out
     if dropped is None:
