@@ -41,10 +41,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcal.online.filter as F  # noqa: E402  (module globals are read when the filter is traced)
+from benchmarks.online_unroll import filter_inputs  # noqa: E402
 from jaxcal import rotation  # noqa: E402
-from jaxcal.online import OnlineHP, make_filter, online_scan, spec_sequences  # noqa: E402
-from jaxcal.sensor import Diag  # noqa: E402
-from jaxcal.simulate.dataset2 import dataset2  # noqa: E402
+from jaxcal.online import make_filter, online_scan  # noqa: E402
 
 RUNGS = ("a0722c9", "+ closed-form tangent", "+ structured Jacobian", "+ elementwise 3x3 algebra", "+ elementwise loop")
 
@@ -105,18 +104,10 @@ def _rung(i: int):
 
 
 def measure(reps: int) -> dict:
-    d = dataset2(jax.random.PRNGKey(0))
-    m, n = d.train.acc.shape[:2]
-    data_s = float(m * n * d.dt)
-    out: dict = {"dataset": f"Dataset 2, {m} sequences x {n} samples at {1 / d.dt:.0f} Hz", "data_s": data_s,
-                 "reps": reps, "load_average_at_start": list(os.getloadavg()), "cores": len(os.sched_getaffinity(0)),
-                 "rungs": list(RUNGS), "rows": []}
     with jax.enable_x64(True):
-        f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-        batch = spec_sequences(f64(d.train.acc), f64(d.train.gyr), Diag(f64(d.acc_spec.s), f64(d.acc_spec.b)),
-                               Diag(f64(d.gyr_spec.s), f64(d.gyr_spec.b)))
-        hp = OnlineHP(*[jnp.asarray(v) for v in OnlineHP()])
-        dt = f64(d.dt)
+        info, batch, dt, hp = filter_inputs()
+        data_s = info["data_s"]
+        out: dict = {**info, "reps": reps, "rungs": list(RUNGS), "rows": []}
         fns = {}
         for i, name in enumerate(RUNGS):
             with _rung(i):

@@ -32,24 +32,31 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcal.online.filter as online  # noqa: E402  (PROPAGATE_UNROLL is read there when the filter is traced)
-from jaxcal.online import OnlineHP, make_filter, online_scan, spec_sequences  # noqa: E402
+from jaxcal.online import OnlineHP, SequenceBatch, make_filter, online_scan, spec_sequences  # noqa: E402
 from jaxcal.sensor import Diag  # noqa: E402
 from jaxcal.simulate.dataset2 import dataset2  # noqa: E402
 
 
-def measure(unrolls: list[int], reps: int) -> dict:
+def filter_inputs() -> tuple[dict, SequenceBatch, float, OnlineHP]:
+    """Dataset 2's training sequences as the filter streams them, in float64 (call inside
+    ``jax.enable_x64(True)``): the run's description (``dataset``, ``data_s``, the load and cores),
+    the spec-converted batch, ``dt`` and the default hyperparameters."""
     d = dataset2(jax.random.PRNGKey(0))
     m, n = d.train.acc.shape[:2]
-    data_s = float(m * n * d.dt)
-    out: dict = {"dataset": f"Dataset 2, {m} sequences x {n} samples at {1 / d.dt:.0f} Hz", "data_s": data_s,
-                 "load_average_at_start": list(os.getloadavg()), "cores": len(os.sched_getaffinity(0)), "rows": []}
+    info = {"dataset": f"Dataset 2, {m} sequences x {n} samples at {1 / d.dt:.0f} Hz", "data_s": float(m * n * d.dt),
+            "load_average_at_start": list(os.getloadavg()), "cores": len(os.sched_getaffinity(0))}
+    f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
+    batch = spec_sequences(f64(d.train.acc), f64(d.train.gyr), Diag(f64(d.acc_spec.s), f64(d.acc_spec.b)),
+                           Diag(f64(d.gyr_spec.s), f64(d.gyr_spec.b)))
+    return info, batch, f64(d.dt), OnlineHP(*[jnp.asarray(v) for v in OnlineHP()])
+
+
+def measure(unrolls: list[int], reps: int) -> dict:
     default = online.PROPAGATE_UNROLL
     with jax.enable_x64(True):
-        f64 = lambda x: jnp.asarray(x, jnp.float64)  # noqa: E731
-        batch = spec_sequences(f64(d.train.acc), f64(d.train.gyr), Diag(f64(d.acc_spec.s), f64(d.acc_spec.b)),
-                               Diag(f64(d.gyr_spec.s), f64(d.gyr_spec.b)))
-        hp = OnlineHP(*[jnp.asarray(v) for v in OnlineHP()])
-        dt = f64(d.dt)
+        info, batch, dt, hp = filter_inputs()
+        data_s = info["data_s"]
+        out: dict = {**info, "rows": []}
         ref: dict = {}
         try:
             for u in unrolls:
