@@ -18,9 +18,10 @@ from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 from jaxcal.diagnose.effects import EXCITE
+from jaxcal.diagnose.handoffs import SensorResult
 from jaxcal.diagnose.prepare import Prepared, measured_inputs, prepare, require_recording, split_blocks
 from jaxcal.diagnose.select import SelectConfig, candidates
-from jaxcal.diagnose.stages import FORCED, UNIT_OF, SensorResult, diagnose_sensor
+from jaxcal.diagnose.stages import FORCED, UNIT_OF, diagnose_sensor
 from jaxcal.recording import Recording
 
 __all__ = [
