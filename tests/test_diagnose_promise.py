@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -49,13 +50,19 @@ SIZE = {("acc", "lever_arm"): 0.01, ("acc", "scale_nonlinearity"): 2e-3, ("acc",
         ("gyr", "time_offset"): 1.5e-3, ("gyr", "misalignment"): 2e-3}
 
 
+@pytest.mark.slow
 @settings(max_examples=8, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(which=st.integers(0, len(EFFECTS) - 1), scale=st.floats(0.0, 3.0), seed=st.integers(0, 2**16),
        rw=st.booleans(), baseline=st.sampled_from(["diag", "affine"]), reference=st.sampled_from(["motion", "none"]))
 def test_promise_holds_on_random_recordings(which, scale, seed, rw, baseline, reference):
     """Any effect at 0-3x a typical detectable size, white or random-walk noise, either baseline,
     against the reference motion or without one (:mod:`jaxcal.diagnose.noref`, the recording's
-    own gyro-carried gravity and rests): the report keeps the promise (zero size: the null case)."""
+    own gyro-carried gravity and rests): the report keeps the promise (zero size: the null case).
+
+    Fast cover: tests/test_diagnose_promise.py::test_suite_reports_go_through_the_checker (every
+    report the fast tier produces, simulated and real, with and without a reference, is checked
+    against the same promise), tests/test_diagnose_promise.py::test_checker_flags_each_broken_promise
+    """
     sensor, name = EFFECTS[which]
     if baseline == "affine" and name == "misalignment":
         name = "scale_nonlinearity"

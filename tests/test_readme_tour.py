@@ -36,6 +36,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SKIP = ("source .venv/bin/activate",)
+OUT_FLAGS = ("--out", "--model-out")  # the CLI's flags that name a file it writes
 
 
 def tour_commands(readme: str) -> list[str]:
@@ -56,7 +57,7 @@ def tour_commands(readme: str) -> list[str]:
 
 def _outputs(cmd: str) -> list[str]:
     words = shlex.split(cmd)
-    return [words[i + 1] for i, w in enumerate(words[:-1]) if w == "--out"]
+    return [words[i + 1] for i, w in enumerate(words[:-1]) if w in OUT_FLAGS]
 
 
 def test_the_tour_block_is_parsed():
@@ -70,7 +71,51 @@ def test_no_two_tour_commands_write_the_same_output():
     assert all(o.startswith("tour/") for o in outs), [o for o in outs if not o.startswith("tour/")]
 
 
+def _tour_path_words(words: list[str]) -> list[str]:
+    """The words of a command that name files: under ``data/``, ``docs/`` or ``tour/``."""
+    return [w for w in words if w.split("/", 1)[0] in ("data", "docs", "tour") and "/" in w]
+
+
+def test_every_tour_command_parses_and_reads_only_what_exists():
+    """Each tour command's arguments parse with ``jaxcal``'s own parser (no flag the CLI lacks),
+    every ``data/`` or ``docs/`` file it reads is in the repository, and every ``tour/`` file it
+    reads was written by an earlier command (its ``--out``, or inside an earlier ``--out`` folder).
+    This is the tour's fast check: the commands themselves run in :func:`test_the_tour_runs_as_written`
+    (slow tier), and each subcommand runs in the fast tier's own CLI tests."""
+    from jaxcal.cli import build_parser
+
+    parser, written, n = build_parser(), [], 0
+    for cmd in tour_commands((ROOT / "README.md").read_text()):
+        words = shlex.split(cmd)
+        if words[0] != "jaxcal":
+            continue
+        if "--help" not in words:
+            parser.parse_args(words[1:])  # SystemExit(2) on a flag or value the CLI does not take
+            n += 1
+        outs = _outputs(cmd)
+        for w in _tour_path_words(words):
+            if w in outs:
+                continue
+            if w.startswith("tour/"):
+                assert any(w == o or (o.endswith("/") and w.startswith(o)) for o in written), f"{cmd}: reads {w} before any command writes it"
+            else:
+                assert (ROOT / w).exists(), f"{cmd}: {w} is not in the repository"
+        written += outs
+    assert n >= 20, n
+
+
+@pytest.mark.slow
 def test_the_tour_runs_as_written(tmp_path, monkeypatch):
+    """Every tour command, in order, as a user types it (170 s on the 2-core CI machine).
+
+    Fast cover: tests/test_readme_tour.py::test_every_tour_command_parses_and_reads_only_what_exists
+    (every command parses and reads only files that exist or an earlier command wrote),
+    tests/test_readme_tour.py::test_no_two_tour_commands_write_the_same_output,
+    tests/test_cli.py::test_multipos_cli_turns_on_imucal_session (calibrate multipos with --turns),
+    tests/test_cli.py::test_online_without_labels_beats_spec (calibrate online),
+    tests/test_noise_cli.py::test_imu_yaml_recovers_known_noise (noise),
+    tests/test_cli_apply_output.py::test_noise_and_diagnose_read_the_applied_output (apply, diagnose)
+    """
     (tmp_path / "data").symlink_to(ROOT / "data")
     (tmp_path / "docs").symlink_to(ROOT / "docs")
     bindir = tmp_path / "bin"
