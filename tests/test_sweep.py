@@ -68,9 +68,15 @@ def test_expand_and_plan_split_static_fields_into_groups_and_batches():
     assert len(sw.plan(spec._replace(grid={"w": [0.8, 0.9]}, batch_size=0))) == 1
 
 
+# One batch of 2 seeds, 2 initial trainings and 4 configurations: the vmapped test, the sharded test's
+# unsharded side and test_a_row_does_not_depend_on_the_batch_it_ran_in's batches of 4 share its compiled
+# call (most of these tests' time is compiling; the module keeps jax's in-memory cache until its end).
+VMAPPED = sw.SweepSpec(grid={"w": [0.8, 1.0]}, random={"gyr_lr": (1e-5, 1e-3, "log")}, n_random=1,
+                       fixed={"init_epochs": 50}, seeds=(0, 1), dataset=TINY)
+
+
 def test_vmapped_group_equals_each_configuration_alone():
-    spec = sw.SweepSpec(grid={"w": [0.8, 1.0]}, random={"gyr_lr": (1e-5, 1e-3, "log")}, n_random=1,
-                        fixed={"init_epochs": 50}, seeds=(0, 1), dataset=TINY)
+    spec = VMAPPED
     res = sw.run_sweep(spec, log=lambda _: None)
     assert len(sw.plan(spec)) == 1 and len(res.rows) == 4
     alone = [{k: r[k] for k in ("group", *res.names, "seed")} | sw.run_one(spec, c)
@@ -84,8 +90,9 @@ def test_vmapped_group_equals_each_configuration_alone():
 def test_a_row_does_not_depend_on_the_batch_it_ran_in():
     """Issue 30: each distinct initial training (seed, init_lr, ...) runs once, unbatched, so its
     numbers are the same in every batch; the rows at batch sizes 2, 4 and 8 stay far closer to
-    run_one than seeds are to each other."""
-    spec = sw.SweepSpec(grid={"w": [0.8, 1.0], "init_lr": [3e-3, 1e-2]}, fixed={"init_epochs": 50}, seeds=(0, 1),
+    run_one than seeds are to each other. (init_lr first: a batch of 4 then holds 2 initial trainings
+    shared by 4 configurations, the shape of VMAPPED's batch, and reuses its compiled call.)"""
+    spec = sw.SweepSpec(grid={"init_lr": [3e-3, 1e-2], "w": [0.8, 1.0]}, fixed={"init_epochs": 50}, seeds=(0, 1),
                         dataset=TINY)
     configs = sw.expand(spec)
     alone = [sw.run_one(spec, c) for c in configs]
@@ -158,35 +165,48 @@ def test_offline_nn_seeds_are_the_chapter_3_experiments_keys_and_rows():
 
 
 _SHARD_SNIPPET = """
-import json, jax
+import json, sys, jax
 from jaxcal import sweep as sw
-from jaxcal.simulate.dataset2 import Dataset2Config
-spec = sw.SweepSpec(grid={"w": [0.7, 0.8, 0.9]}, fixed={"init_epochs": 50}, seeds=(0,),
-                    dataset=Dataset2Config(n_train=20, n_val=4, n_test_acc=50, n_test_gyr=50))
-sharded = sw.run_sweep(spec)
-single = sw.run_sweep(spec, devices=jax.devices()[:1])
-off = sw.SweepSpec(target="offline-nn", grid={"lr": [3e-3, 1e-2, 3e-2]}, fixed={**OFFLINE_TINY, "warm_start": False},
-                   seeds=(0,))
-print(json.dumps({"n_devices": jax.device_count(), "sharded": sharded.rows, "single": single.rows,
-                  "devices_used": sharded.timing["devices"], "offline_sharded": sw.run_sweep(off).rows,
-                  "offline_single": sw.run_sweep(off, devices=jax.devices()[:1]).rows}))
+spec = sw.spec_from_dict(json.loads(sys.argv[1]))
+res = sw.run_sweep(spec)
+print(json.dumps({"n_devices": jax.device_count(), "devices_used": res.timing["devices"], "rows": res.rows}))
 """
 
 
-def test_sharded_equals_unsharded_on_four_host_devices():
-    env = _env(XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
-    snippet = f"OFFLINE_TINY = {OFFLINE_TINY!r}\n" + _SHARD_SNIPPET
-    out = subprocess.run([sys.executable, "-c", snippet], env=env, capture_output=True, text=True, timeout=600)
+def _sharded_rows(spec: sw.SweepSpec, n_devices: int) -> list[dict]:
+    """``spec``'s rows from a fresh process with ``n_devices`` host CPU devices (the flag must be set
+    before jax starts), every batch sharded over all of them."""
+    env = _env(XLA_FLAGS=f"--xla_force_host_platform_device_count={n_devices}", JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", _SHARD_SNIPPET, json.dumps(sw.spec_to_dict(spec))], env=env,
+                         capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
-    assert got["n_devices"] == 4 and got["devices_used"] == 4
-    # 3 configurations padded to 4 on 4 devices (batch 1 each) vs 3 vmapped on one device.
-    _close_rows(got["sharded"], got["single"])
-    # offline-nn from the random initialisation: 2.3e-7 relative (measured). Not with warm_start: the
-    # ridge warm start (jaxcal.nn.ridge_output_layer, float32 dual solve) moves by 1e-4 relative between
-    # a batch of 1 per device and 3 on one device, and Adam's first steps on its near-zero output-layer
-    # gradients carry that to 2e-3 in the test error after training (measured at width 16-64).
-    _close_rows(got["offline_sharded"], got["offline_single"])
+    assert got["n_devices"] == got["devices_used"] == n_devices
+    return got["rows"]
+
+
+def test_sharded_equals_unsharded_on_three_host_devices():
+    """4 configurations padded to 6 on 3 devices (2 each) vs the 4 vmapped on this process's one
+    device (VMAPPED's batch, compiled here already): float32 summation order of the batched matmuls
+    only, measured 1.1e-7 relative (before, 4 devices with 3 configurations padded to 4: 1.5e-7)."""
+    sharded = _sharded_rows(VMAPPED, 3)
+    _close_rows(sharded, sw.run_sweep(VMAPPED).rows)
+
+
+@pytest.mark.slow
+def test_offline_nn_sharded_equals_unsharded_on_four_host_devices():
+    """offline-nn from the random initialisation, 3 learning rates padded to 4 on 4 devices vs the 3
+    vmapped on one device: 2.3e-7 relative (measured). Not with warm_start: the ridge warm start
+    (jaxcal.nn.ridge_output_layer, float32 dual solve) moves by 1e-4 relative between a batch of 1 per
+    device and 3 on one device, and Adam's first steps on its near-zero output-layer gradients carry
+    that to 2e-3 in the test error after training (measured at width 16-64).
+
+    Fast cover: tests/test_sweep.py::test_sharded_equals_unsharded_on_three_host_devices (the same
+    target-independent runner, jaxcal.sweep.run._run_batch: padding, mesh and gather, on online-thesis)
+    """
+    off = sw.SweepSpec(target="offline-nn", grid={"lr": [3e-3, 1e-2, 3e-2]}, fixed={**OFFLINE_TINY, "warm_start": False},
+                       seeds=(0,))
+    _close_rows(_sharded_rows(off, 4), sw.run_sweep(off).rows)
 
 
 def _cli(*args, **kw):
@@ -197,26 +217,34 @@ def _cli(*args, **kw):
 @pytest.mark.parametrize(
     ("spec", "needle"),
     [
-        ({"grid": {"init_every": [5, 10], "w": [0.8, 0.9]}, "fixed": {"init_epochs": 50}, "seeds": [0],
-          "dataset": TINY_DICT, "batch_size": 1}, "Lowest gyroscope error"),
-        # slow (36 s in CI): the checkpoint and resume are the target-independent runner's, which the
-        # online-thesis case covers; the offline-nn rows' independence of their batch is
-        # test_offline_nn_vmapped_groups_equal_each_configuration_alone's
+        # 4 batches of 2 (seeds 0 and 1) in two static groups; init_every=10's batches have the shape of
+        # test_a_row_does_not_depend_on_the_batch_it_ran_in's batches of 2 and reuse its compiled call
+        ({"grid": {"init_every": [5, 10], "w": [0.8, 0.9]}, "fixed": {"init_epochs": 50}, "seeds": [0, 1],
+          "dataset": TINY_DICT, "batch_size": 2}, "Lowest gyroscope error"),
         pytest.param({"target": "offline-nn", "grid": {"warm_start": [True, False], "lr": [3e-3, 3e-2]}, "fixed": OFFLINE_TINY,
                       "seeds": [0], "batch_size": 1}, "Lowest NN test error", marks=pytest.mark.slow),
     ],
     ids=["online-thesis", "offline-nn"],
 )
-def test_killed_sweep_resumed_gives_the_uninterrupted_rows(tmp_path, spec, needle):
+def test_killed_sweep_resumed_gives_the_uninterrupted_rows(tmp_path, capsys, spec, needle):
+    """The run that is killed (SIGKILL once its first batch is checkpointed) is a process of its own;
+    the uninterrupted run, the refusal without --resume and the resumed run are ``jaxcal.cli.main``
+    in this process (the command line's own code, the same compiled calls).
+
+    Fast cover: tests/test_sweep.py::test_killed_sweep_resumed_gives_the_uninterrupted_rows (its
+    online-thesis case: the checkpoint and resume are the target-independent runner's, the same for
+    offline-nn), tests/test_sweep.py::test_offline_nn_vmapped_groups_equal_each_configuration_alone
+    (offline-nn rows do not depend on their batch)
+    """
     cfg = tmp_path / "sweep.json"
     cfg.write_text(json.dumps(spec))
-    full = _cli(cfg, "--out", tmp_path / "full")
-    _, err = full.communicate(timeout=600)
-    assert full.returncode == 0, err
+    n_batches = len(sw.plan(sw.load_sweep_spec(cfg)))
+    assert n_batches == 4
+    assert cli.main(["sweep", str(cfg), "--out", str(tmp_path / "full"), "--quiet"]) == 0
     assert (tmp_path / "full" / "sweep_heatmap.png").stat().st_size > 0
     assert needle in (tmp_path / "full" / "sweep.md").read_text()
     rows_full = json.loads((tmp_path / "full" / "sweep.json").read_text())["rows"]
-    assert len(rows_full) == 4
+    assert len(rows_full) == len(sw.expand(sw.load_sweep_spec(cfg)))
 
     killed = _cli(cfg, "--out", tmp_path / "part")
     ck = tmp_path / "part" / sw.CHECKPOINT
@@ -227,15 +255,16 @@ def test_killed_sweep_resumed_gives_the_uninterrupted_rows(tmp_path, spec, needl
     killed.communicate(timeout=60)
     assert killed.returncode == -signal.SIGKILL
     n_done = len(json.loads(ck.read_text())["batches"])
-    assert 1 <= n_done < 4 and not (tmp_path / "part" / "sweep.json").exists()
+    assert 1 <= n_done < n_batches and not (tmp_path / "part" / "sweep.json").exists()
 
-    again = _cli(cfg, "--out", tmp_path / "part")  # without --resume: refused, checkpoint kept
-    _, err = again.communicate(timeout=120)
-    assert again.returncode == 2 and "--resume" in err and len(err.strip().splitlines()) == 1
+    capsys.readouterr()
+    # without --resume: refused (exit 2, one line), checkpoint kept
+    assert cli.main(["sweep", str(cfg), "--out", str(tmp_path / "part")]) == 2
+    err = capsys.readouterr().err
+    assert "--resume" in err and len(err.strip().splitlines()) == 1
+    assert len(json.loads(ck.read_text())["batches"]) == n_done
 
-    resumed = _cli(cfg, "--out", tmp_path / "part", "--resume")
-    _, err = resumed.communicate(timeout=600)
-    assert resumed.returncode == 0, err
+    assert cli.main(["sweep", str(cfg), "--out", str(tmp_path / "part"), "--resume", "--quiet"]) == 0
     out = json.loads((tmp_path / "part" / "sweep.json").read_text())
     assert out["timing"]["resumed"] == n_done
     assert out["rows"] == rows_full  # exactly, not within a tolerance
