@@ -87,15 +87,21 @@ def _named(rep: dict, name: str) -> dict:
 
 
 def test_no_clock_skew_is_named_without_one():
-    """A 5-minute simulated rig (25 Hz) whose clocks agree: ``clock_skew`` is not named."""
-    rep = diagnose_recording(_rig(0.0))
+    """A 2-minute simulated rig (25 Hz) whose clocks agree: ``clock_skew`` is not named (the rig of
+    the 2500 ppm tests below, the same shapes, so one compile serves all three)."""
+    rep = diagnose_recording(_rig(0.0, 2.0))
     assert not _named(rep, "clock_skew"), rep["effects"]
 
 
 @pytest.mark.slow
 def test_a_concealed_clock_skew_is_named_within_three_standard_errors():
     """200 ppm over 5 minutes (30 ms end to end), concealed by resampling the reference: named for
-    both sensors, each estimate within 3 standard errors of the truth."""
+    both sensors, each estimate within 3 standard errors of the truth.
+
+    Fast cover: tests/test_clock_skew.py::test_rows_a_skew_moves_past_the_reference_are_not_fitted
+    (a concealed 2500 ppm skew named for both sensors, each within 3 standard errors),
+    tests/test_clock_skew.py::test_no_clock_skew_is_named_without_one (none named without one).
+    """
     rep = diagnose_recording(_rig(200.0))
     named = _named(rep, "clock_skew")
     assert set(named) == {"acc", "gyr"}, rep["effects"]
@@ -189,7 +195,14 @@ def test_align_writes_groundtruth_on_the_imu_clock_with_the_skew_removed():
 
     Measured (seed 5): skew 299.98 +- 0.13 ppm, tau 8 us (1.8 s.e.) from the truth; ground truth
     absolute 0.10 mm and 0.0020 deg rms, relative 0.013 mm and 0.0012 deg. With the skew ignored
-    (the same tau, skew 0) the same rows miss the bar: 19.7 mm and 1.9 deg, relative 0.92 mm and 0.088 deg."""
+    (the same tau, skew 0) the same rows miss the bar: 19.7 mm and 1.9 deg, relative 0.92 mm and 0.088 deg.
+
+    Fast cover: tests/test_clock_skew.py::test_a_skew_and_a_time_offset_both_at_the_linearisation_point
+    (a skew and a time offset estimated together, each within 3 standard errors),
+    tests/test_align.py::test_groundtruth_is_the_imu_pose_on_the_imu_clock (align's ground truth
+    against the analytic pose on the IMU clock, without a skew). A 30-s version of this rig is no
+    fast cover: its skew read 229.7 +- 13.5 ppm (5.2 s.e. from 300) and it took as long as this one.
+    """
     ppm, offset = 300.0, -0.04
     rec = _skewed_mocap_rig(ppm, offset)
     res = align_recording(rec)
@@ -222,7 +235,12 @@ def qmt_beside_align(rec, res) -> dict:
 def test_broad_beside_qmt_sync_opt_imu(path):
     """Both BROAD trials: ``align``'s offset and clock rate beside ``qmt.syncOptImu`` (offset and
     rate from the gyro norms) on the same data: offsets at the epoch within 1 ms, qmt's rate
-    inside ``align``'s 95 % interval. Skipped without the optional extra ``qmt``."""
+    inside ``align``'s 95 % interval. Skipped without the optional extra ``qmt``.
+
+    Fast cover: tests/test_clock_skew.py::test_qmt_sync_read_in_aligns_convention (qmt's result
+    turned into align's offset and skew), tests/test_clock_skew.py::test_a_skew_and_a_time_offset_both_at_the_linearisation_point
+    (the offset and skew that align reports, estimated within 3 standard errors).
+    """
     pytest.importorskip("qmt")
     if not path.exists():
         pytest.skip("BROAD sample not present")
@@ -230,3 +248,21 @@ def test_broad_beside_qmt_sync_opt_imu(path):
     c = qmt_beside_align(rec, align_recording(rec))
     assert abs(c["tau_qmt"] - c["tau"]) < 1e-3, c
     assert abs(c["ppm_qmt"] - c["ppm"]) < 1.96 * c["ppm_se"], c
+
+
+@pytest.mark.parametrize("ppm,offset", [(300.0, -0.04), (-150.0, 0.025)])
+def test_qmt_sync_read_in_aligns_convention(ppm, offset):
+    """:func:`clock_from_qmt` on the sync a perfect ``qmt.syncOptImu`` returns for known clocks:
+    the IMU (its clock true time, nominal rate 100 Hz) seen by a 240 Hz mocap whose clock reads
+    ``t (1 + s) + offset``. On that clock the IMU's rate is ``100 / (1 + s)``; mocap sample ``j``
+    (qmt's rate of the rotation from ``j - 1`` to ``j``: reference time ``(j - 1/2) / 240``) is IMU
+    sample ``i0 + j rate' / 240`` with ``i0 = -(1/480 + offset) rate'``. align's convention
+    (reference time ``t - tau + s (t - epoch)``) then has ``tau = -offset - s epoch``."""
+    nominal, opt, s, epoch = 100.0, 240.0, ppm * 1e-6, 37.5
+    rate = nominal / (1.0 + s)
+    i0 = -(0.5 / opt + offset) * rate
+    info = {"data": {"imu_offsetonly": {"rate": nominal}, "imu": {"rate": rate}, "opt": {"rate": opt}},
+            "sync": [("imu", "ind", 0, "opt", "ind", 0.0), ("opt", "ind", 0, "imu", "ind", i0)]}
+    tau, got_ppm = clock_from_qmt(info, epoch)
+    assert got_ppm == pytest.approx(ppm, abs=1e-6)
+    assert tau == pytest.approx(-offset - s * epoch, abs=1e-12)

@@ -90,19 +90,14 @@ def test_without_drops_one_effect_and_t0_with_the_last_temperature_term():
 TUMVI = Path(__file__).resolve().parent.parent / "data" / "tumvi_room1_512_16" / "room1.npz"
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(not TUMVI.exists(), reason="TUM-VI copy not present")
-def test_baseline_model_scores_the_diagnosis_own_residual_on_its_recording():
-    """The first half of TUM-VI room1 diagnosed; its baseline-only model applied to the same half and
-    scored by calibrated_rms: residual x fitted scale = diagnose's own baseline residual, row for row
-    (the scorer is input-referred, diagnose output-referred)."""
+def _baseline_model_scores_the_residual(rec):
+    """Diagnose ``rec``; its baseline-only model applied to ``rec`` and scored by calibrated_rms:
+    residual x fitted scale = diagnose's own baseline residual, row for row."""
     from jaxcal.diagnose import diagnose_banded, prepare
     from jaxcal.diagnose import effects as E
     from jaxcal.diagnose.select import linearize_baseline
     from jaxcal.methods.diagnosed import diagnosed_model_state
-    from jaxcal.recording import load_recording
 
-    rec = half(load_recording(TUMVI), 0)
     preps, res = diagnose_banded(rec, "diag")
     fit = diagnosed_model_state(preps, res, "diag", rec, baseline_only=True)
     out = CalibrationModel("diagnosed", fit.sensors, fit.state, fit.meta).apply(rec)
@@ -113,7 +108,33 @@ def test_baseline_model_scores_the_diagnosis_own_residual_on_its_recording():
         _, z = linearize_baseline("diag", sd, E.identity_beta("diag"), np.zeros(E.N_THETA[s]))
         rows = res[s].fit_rows
         scale = np.asarray(res[s].base_all.beta)[:3]
-        # measured: 5.5e-16 g (acc), 1.2e-15 rad/s (gyr)
+        # measured: 5.5e-16 g (acc), 1.2e-15 rad/s (gyr) on the first half of room1;
+        # 1.3e-15 g, 7.7e-16 rad/s on its first 4000 rows (489 of them fitted)
         np.testing.assert_allclose(z[rows] * scale, np.asarray(res[s].base_all.resid)[rows], rtol=0, atol=1e-12)
         r = calibrated_rms(rec, out, {s: sig})[s]
         assert r["rms"] == pytest.approx(float(np.sqrt(np.mean(z[sd.valid] ** 2))), rel=1e-12)
+
+
+@pytest.mark.skipif(not TUMVI.exists(), reason="TUM-VI copy not present")
+def test_baseline_model_scores_the_diagnosis_own_residual_on_a_short_recording():
+    """The check below on TUM-VI room1's first 4000 samples (20 s; as many rows as the diagnose
+    tests' simulated recordings, whose compiled code it shares)."""
+    from jaxcal.recording import load_recording, take_rows
+
+    rec = load_recording(TUMVI)
+    _baseline_model_scores_the_residual(take_rows(rec, np.arange(rec.n) < 4000))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not TUMVI.exists(), reason="TUM-VI copy not present")
+def test_baseline_model_scores_the_diagnosis_own_residual_on_its_recording():
+    """The first half of TUM-VI room1 diagnosed; its baseline-only model applied to the same half and
+    scored by calibrated_rms: residual x fitted scale = diagnose's own baseline residual, row for row
+    (the scorer is input-referred, diagnose output-referred).
+
+    Fast cover: tests/test_mocap_transfer.py::test_baseline_model_scores_the_diagnosis_own_residual_on_a_short_recording
+    (the same check on the first 4000 samples).
+    """
+    from jaxcal.recording import load_recording
+
+    _baseline_model_scores_the_residual(half(load_recording(TUMVI), 0))
