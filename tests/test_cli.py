@@ -363,6 +363,15 @@ def test_online_thesis_cli_equals_library(sim, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_multipos_through_cli_on_xsens(tmp_path, capsys):
+    """multipos through the command line on the Xsens recording (38 poses): in-sample |f| - 1 g RMS
+    below 0.5 mg, and the applied initial rest reads 1 g.
+
+    Fast cover: tests/test_multipos.py::test_xsens_heldout_acc_beats_factory (the accelerometer fit
+    on the same recording's poses, held out),
+    tests/test_multipos.py::test_xsens_static_intervals_match_readme (its 38 poses),
+    tests/test_cli.py::test_multipos_cli_turns_on_imucal_session (calibrate multipos and apply its
+    model through the command line on a real session)
+    """
     from pathlib import Path
 
     rec_path = Path(__file__).resolve().parents[1] / "data" / "imu_tk_xsens_multipos" / "xsens.npz"
@@ -418,10 +427,22 @@ def test_multipos_cli_turns_on_imucal_session(tmp_path, capsys):
     assert code == 2 and "START < END" in err
 
 
+@pytest.mark.slow
 def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
     """x-io's Fusion recording (hand-held) is still only flat or tilted < 90 deg: multipos exits 2
     and says what is undetermined, writing nothing; with --partial it writes an accelerometer-only
-    model and says what it left as recorded."""
+    model and says what it left as recorded. (42 s cold on the 2-core machine: the threshold scan
+    and the partial fit compile for this recording's pose counts.)
+
+    Fast cover: tests/test_multipos.py::test_observability_refuses_what_the_poses_do_not_determine
+    (the library refuses poses that determine too little, naming what and the spread, and points to
+    --partial),
+    tests/test_multipos.py::test_partial_recording_fit_keeps_the_undetermined_as_recorded (the
+    partial fit keeps the undetermined as recorded, the gyro None),
+    tests/test_cli.py::test_multipos_cli_refusal_and_partial_wiring (the command line: exit 2 with
+    the observability message and nothing written; --partial passed through, an acc-only model
+    written with its partial note; --partial refused for linear)
+    """
     from pathlib import Path
 
     rec_path = Path(__file__).resolve().parents[1] / "data" / "xio_fusion_sensor_data" / "sensor_data.npz"
@@ -434,6 +455,48 @@ def test_multipos_cli_refuses_the_fusion_recording(tmp_path, capsys):
     model = load_model(tmp_path / "mp.npz")
     assert model.sensors == ("acc",) and "gyr" in model.meta["fit_quality"]["partial"], model.meta
     code, _, err = run(capsys, "calibrate", "--method", "linear", "--partial", rec_path, "--out", tmp_path / "x.npz")
+    assert code == 2 and "--partial is an option of multipos, not of linear" in err, err
+
+
+def test_multipos_cli_refusal_and_partial_wiring(tmp_path, capsys, monkeypatch):
+    """The command line around the multipos fit, the fit itself replaced (it is tested on simulated
+    poses in tests/test_multipos.py): the fit's observability refusal (:func:`check_observable`'s
+    own message) exits 2 in one line and writes nothing; ``--partial`` reaches the fit, and a fit
+    that leaves the gyro uncalibrated writes an accelerometer-only model, says what it kept on
+    stderr and stores it in ``fit_quality``; ``--partial`` is refused for another method."""
+    from jaxcal import multipos as mp
+    from jaxcal.methods import multipos as mmp
+    from jaxcal.sensor import LinearCal
+
+    seen = []
+
+    def fake_fit(rec, config, *, detect, turn_times, partial, summary):
+        seen.append(partial)
+        if not partial:  # flat and tilted poses: two scale/bias combinations and the gyro undetermined
+            mp.check_observable(mp.Observability(np.array([1.0, 0.6, 0.4, 0.2, 1e-4, 1e-5]),
+                                                 np.array([1.0, 0.5, 0.3, 0.2, 0.1, 0.1, 1e-4, 1e-5, 1e-6]), 38.0))
+        kept = {"acc": "2 of 9 combinations left as recorded, 7 fitted",
+                "gyr": "left as recorded (the rotations determine too little)"}
+        q = {"n_poses": 9, "n_transitions": 8, "acc_rms_mg": 0.5, "gyr_median_deg": None, "acc_sv_min": 1e-5,
+             "gyr_sv_min": 1e-6, "partial": kept}
+        return LinearCal(np.eye(3) * 1.01, np.full(3, 0.002)), None, q
+
+    monkeypatch.setattr(mmp, "fit_multipos_recording", fake_fit)
+    n = 200
+    save_recording(Recording(t=np.arange(n) * 0.01, acc=np.tile([0.0, 0.0, 1.0], (n, 1)), gyr=np.zeros((n, 3)),
+                             acc_unit="g", gyr_unit="rad/s"), tmp_path / "r.npz")
+    code, out, err = run(capsys, "calibrate", "--method", "multipos", tmp_path / "r.npz", "--out", tmp_path / "mp.npz")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1, err
+    assert "cannot calibrate" in err and "six directions" in err, err
+    assert not (tmp_path / "mp.npz").exists()
+    code, _, err = run(capsys, "calibrate", "--method", "multipos", "--partial", "--no-held-out", tmp_path / "r.npz",
+                       "--out", tmp_path / "mp.npz")
+    assert code == 0 and "multipos --partial: gyr: left as recorded" in err, err
+    assert seen == [False, True]
+    model = load_model(tmp_path / "mp.npz")
+    assert model.sensors == ("acc",) and "gyr" in model.meta["fit_quality"]["partial"], model.meta
+    np.testing.assert_allclose(model.apply(load_recording(tmp_path / "r.npz"))["acc_cal"][0], 1.01 * (np.array([0, 0, 1.0]) - 0.002))
+    code, _, err = run(capsys, "calibrate", "--method", "linear", "--partial", tmp_path / "r.npz", "--out", tmp_path / "x.npz")
     assert code == 2 and "--partial is an option of multipos, not of linear" in err, err
 
 
@@ -577,7 +640,15 @@ def test_multipos_parameters_match_the_simulated_truth(tmp_path, capsys):
     """``multipos`` on a simulated session of 12 poses (white noise 4 / 2 LSB): the stored
     parameters are the simulated sensor's (:func:`linear_parameters` of the truth), and the
     held-out (leave-one-pose-out) error is stored beside the in-sample one. ~30 s cold (the
-    vmapped folds compile), hence slow."""
+    vmapped folds compile), hence slow.
+
+    Fast cover: tests/test_multipos.py::test_multipos_recovers_simulated_calibration (the fit
+    recovers the simulated sensor),
+    tests/test_cli.py::test_calibrate_prints_parameters_and_stores_held_out (stored parameters
+    against the truth's and the held-out figure beside the in-sample one, through the command line),
+    tests/test_multipos_gsens.py::test_cli_g_sensitivity_recovers_G_and_improves_the_held_out_figure
+    (multipos through the command line with its leave-one-pose-out held-out figure)
+    """
     from jaxcal.methods.summary import linear_parameters
     from jaxcal.simulate.multipos import ACC_TRUTH, GYR_TRUTH
     from jaxcal.simulate.recordings import multipos_recording

@@ -375,9 +375,17 @@ def test_simulate_failing_midway_leaves_no_folder(tmp_path, capsys, monkeypatch)
 
 
 @pytest.mark.skipif(not (DATA / "imu_tk_xsens_multipos" / "xsens.npz").exists(), reason="data not present")
+@pytest.mark.slow
 def test_readme_turns_on_the_xsens_recording_are_refused(tmp_path, capsys):
     """The README's ``--turns`` (times of the imucal session) on the Xsens recording of the same
-    tour: those windows turn about 14 and 7 degrees, not 360; refused, naming the turn."""
+    tour: those windows turn about 14 and 7 degrees, not 360; refused, naming the turn. (27 s cold
+    on the 2-core machine: the threshold scan and the turn fit compile for this recording.)
+
+    Fast cover: tests/test_multipos.py::test_check_turns_refuses_a_window_that_is_not_a_whole_turn
+    (windows that are not a whole turn refused, naming the turn, its times and --turns),
+    tests/test_cli_error_flags.py::test_refusal_names_the_flag_not_the_python_argument (a --turns
+    refusal through the command line: exit 2, one line naming --turns)
+    """
     refused(capsys, ["calibrate", "--method", "multipos", DATA / "imu_tk_xsens_multipos" / "xsens.npz",
                      "--turns", "66.1-69.3,78.9-82.1", "--out", tmp_path / "mp.npz"],
             absent=(tmp_path / "mp.npz",), needles=("turn 1 (66.1-69.3 s)", "not a whole 360 deg turn"))

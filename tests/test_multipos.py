@@ -30,8 +30,6 @@ DATA = Path(__file__).resolve().parent.parent / "data"
 A_ACC, B_ACC = ACC_TRUTH
 A_GYR, B_GYR = GYR_TRUTH
 simulate = simulate_poses
-# detection settings of the simulated recordings (10 s initial rest, 2 s holds)
-SIM_DETECT = mp.DetectOptions(init_duration=8.0, window=0.5)
 
 
 def _rec(t, acc, gyr, unit=("LSB", "LSB")):
@@ -146,6 +144,16 @@ def test_xsens_heldout_acc_beats_factory(x64, xsens):
 
 @pytest.mark.slow
 def test_xsens_heldout_gyro_and_acc(xsens):
+    """Leave-poses-out on the Xsens recording (5 folds): held-out accelerometer below half the
+    factory calibration's, gyro median below 1.5 deg.
+
+    Fast cover: tests/test_multipos.py::test_xsens_heldout_acc_beats_factory (the held-out
+    accelerometer figure on the same recording and folds),
+    tests/test_multipos.py::test_leave_poses_out_folds_equal_separate_fits (the folds' gyro and
+    accelerometer errors against separate fits),
+    tests/test_multipos.py::test_held_out_skips_poses_whose_fold_is_undetermined (held-out figure
+    on a real session, imucal's)
+    """
     rec, det = xsens
     data = mp.prepare(rec.t, rec.acc, rec.gyr, det.intervals)
     held = mp.leave_poses_out(data, mp.MultiposConfig(), n_folds=5)
@@ -172,8 +180,11 @@ def test_bias_jackknife_matches_the_spread_over_noise_draws():
     spread of the whole fit's biases over 30 noise draws of one 24-pose session (fixed poses,
     white noise). Measured ratio jackknife / spread: gyro 0.80-1.13 (its bias is a mean of the
     poses' rests), accelerometer 1.08-1.55 (conservative: a delete-one jackknife over-states a
-    nonlinear fit's variance, Efron-Stein; 2.9-3.9 with 12 poses). The fast test of the same code
-    is ``test_jackknife_of_leave_one_out_means_is_the_standard_error_of_the_mean``."""
+    nonlinear fit's variance, Efron-Stein; 2.9-3.9 with 12 poses).
+
+    Fast cover: tests/test_multipos.py::test_jackknife_of_leave_one_out_means_is_the_standard_error_of_the_mean
+    (the jackknife code against its closed form for means)
+    """
     key = jax.random.PRNGKey(3)
     t, acc, gyr = simulate(key, n_poses=24, noise_seed=0)
     det = detect_static(t, acc, k=3.0, init_duration=8.0, window=0.5, min_duration=1.0)
@@ -192,13 +203,21 @@ def test_bias_jackknife_matches_the_spread_over_noise_draws():
         assert np.all((lo < ratio) & (ratio < hi)), (s, ratio)
 
 
-def test_leave_poses_out_folds_equal_separate_fits(sim):
+@pytest.mark.parametrize("batch", [1, pytest.param(5, marks=pytest.mark.slow)])
+def test_leave_poses_out_folds_equal_separate_fits(sim, batch):
     """A second implementation of the folds: each fold fitted alone (a Python loop over
     ``fit_prepared_jit`` with that fold's weights) and scored on what it left out. ``leave_poses_out``
-    one fold after another (the CPU default) and all 5 in one vmap agree with it, up to where the
-    compiled LM loops stop (measured: acc <= 1.4e-14 in one suite run and 1.9e-11 g in another, against
-    errors to 3e-5 g: where the accelerometer LM stops depends on the compiled loop; gyr <= 6.0e-11 rad
-    against errors to 1.3e-4 rad)."""
+    one fold after another (batch 1, the CPU default) and all 5 in one vmap (batch 5) agree with it,
+    up to where the compiled LM loops stop (measured: acc <= 1.4e-14 in one suite run and 1.9e-11 g in
+    another, against errors to 3e-5 g: where the accelerometer LM stops depends on the compiled loop;
+    gyr <= 6.0e-11 rad against errors to 1.3e-4 rad). The vmapped case compiles the whole fit again
+    under vmap (about a third of the test's 35 s cold on the 2-core machine), hence slow.
+
+    Fast cover: tests/test_multipos.py::test_leave_poses_out_folds_equal_separate_fits (batch 1: the
+    same folds, one after another, against the separate fits),
+    tests/test_multipos.py::test_xsens_heldout_acc_beats_factory (the accelerometer fit vmapped over
+    fold weights)
+    """
     t, acc, gyr = sim
     det = detect_static(t, acc, k=3.0, init_duration=8.0, window=0.5, min_duration=1.0)
     data = mp.prepare(t, acc, gyr, det.intervals)
@@ -213,10 +232,9 @@ def test_leave_poses_out_folds_equal_separate_fits(sim):
                                     gyr_w=jnp.asarray(tf != k, jnp.float64))
             ea[pf == k] = np.asarray(mp.acc_norm_errors(f.acc, d.pose_acc))[pf == k]
             eg[tf == k] = np.asarray(mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, d))[tf == k]
-    for batch in (1, 5):
-        h = mp.leave_poses_out(data, config, n_folds=5, batch=batch)
-        np.testing.assert_allclose(h.acc_err, ea, rtol=0, atol=1e-10)
-        np.testing.assert_allclose(h.gyr_err, np.where(np.asarray(data.seg_ok), eg, np.nan), rtol=0, atol=2e-9)
+    h = mp.leave_poses_out(data, config, n_folds=5, batch=batch)
+    np.testing.assert_allclose(h.acc_err, ea, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(h.gyr_err, np.where(np.asarray(data.seg_ok), eg, np.nan), rtol=0, atol=2e-9)
     assert mp.fold_batch(40) == (1 if jax.default_backend() == "cpu" else 40)
 
 
@@ -245,9 +263,11 @@ def test_observability_refuses_what_the_poses_do_not_determine(sim):
     """Poses that differ only by a turn about the vertical (gravity always along body z) determine
     neither the x/y accelerometer scales and biases nor the gyro's x/y rows: the recording entry
     point refuses, naming both; random poses are well determined (every relative singular value
-    > 0.1)."""
+    > 0.1). Every detection here is the recording entry point's (``_rec_detect``), so the threshold
+    scans compile once for this test, ``test_fit_multipos_recording_contract`` and
+    ``test_partial_recording_fit_keeps_the_undetermined_as_recorded``."""
     t, acc, gyr = sim
-    fit, iv, _ = mp.detect_and_fit(t, acc, gyr, detect=SIM_DETECT)
+    fit, iv, _ = mp.detect_and_fit(t, acc, gyr, detect=_rec_detect(_rec(t, acc, gyr)))
     obs = mp.observability(mp.prepare(t, acc, gyr, iv), fit.acc, fit.gyr)
     assert obs.acc_sv.min() > 0.1 and obs.gyr_sv.min() > 0.1 and obs.spread_deg > 90, obs
     rots = np.stack([_exp_np(np.array([0.0, 0.0, 0.7 * j])) for j in range(14)])
@@ -258,7 +278,8 @@ def test_observability_refuses_what_the_poses_do_not_determine(sim):
     import re
 
     assert float(re.search(r"within ([0-9.]+) deg", str(e.value)).group(1)) < 1.0, e.value
-    fit2, iv2, _ = mp.detect_and_fit(t2, acc2, gyr2, detect=SIM_DETECT, check=False)
+    assert "six directions" in str(e.value) and "--partial" in str(e.value), e.value  # what to record, or --partial
+    fit2, iv2, _ = mp.detect_and_fit(t2, acc2, gyr2, detect=_rec_detect(rec), check=False)
     obs2 = mp.observability(mp.prepare(t2, acc2, gyr2, iv2), fit2.acc, fit2.gyr)
     assert (obs2.acc_sv < 0.02).sum() >= 2 and (obs2.gyr_sv < 0.02).sum() >= 2, obs2  # linearised at a poor fit: a lower bound
 
@@ -480,6 +501,27 @@ def test_vertical_turns_closed_form_and_residual_at_truth(x64):
     np.testing.assert_allclose(np.asarray(e_off), 2 * np.pi * 0.01, rtol=1e-6)
     with pytest.raises(ValueError, match="rest"):
         mp.prepare_turns(t, acc, gyr, spans, [[]] * 3)
+
+
+def test_check_turns_refuses_a_window_that_is_not_a_whole_turn(x64):
+    """:func:`check_turns` on the three closed turns of :func:`_vertical_turns` at the true
+    calibration: given their own times it passes; given times that cover a rest and part of a turn
+    (as another session's times would), it refuses, naming the first such turn by its number and
+    times and the angle the gyroscope measures there (not a whole 360 deg turn). The command line
+    refuses the README's imucal ``--turns`` on the Xsens recording this way (slow tier,
+    tests/test_hostile_inputs.py::test_readme_turns_on_the_xsens_recording_are_refused)."""
+    ups = [[1.0, 0.1, -0.05], [0.05, -1.0, 0.1], [0.1, 0.05, 1.0]]
+    t, acc, gyr, spans, _ = _vertical_turns(ups, [1.0, -1.0, 1.0], G_FULL, B_G)
+    ident = LinearCal(np.eye(3), np.zeros(3))
+    fit = mp.MultiposFit(ident, LinearCal(G_FULL, B_G), np.zeros((3, 3)), np.asarray(0.0), np.asarray(0.0))
+    good = t[spans]
+    mp.check_turns(fit, mp.turns_from_times(t, acc, gyr, good, rest=0.5), good)
+    # turn 2's window moved 1.5 s earlier: half a rest, then 1.5 s of a 2 s turn (not 360 deg)
+    bad = good.copy()
+    bad[1] -= 1.5
+    with pytest.raises(ValueError, match=r"turn 2 \([0-9.]+-[0-9.]+ s\).*not a whole 360 deg turn") as e:
+        mp.check_turns(fit, mp.turns_from_times(t, acc, gyr, bad, rest=0.5), bad)
+    assert f"turn 2 ({bad[1, 0]:g}-{bad[1, 1]:g} s)" in str(e.value) and "--turns" in str(e.value), e.value
 
 
 def test_vertical_turn_fixes_vertical_scale_in_fit(x64):

@@ -617,27 +617,39 @@ def test_property_noise(noise, offset, earlier, tmp_path_factory, capsys):
 def test_sweep_lock_and_a_sweep_whose_every_run_diverges(tmp_path, capsys):
     """Two concurrent sweeps into one folder overwrote each other: the second is refused while the
     first's process lives; a lock left by a killed sweep (its process gone) is taken over. That run
-    (learning rates of 1e30 on a tiny dataset: every run NaN) exits 2, not 0: no table, no
-    checkpoint, no folder, the lock released."""
+    (learning rates that diverge: every run NaN) exits 2, not 0: no table, no checkpoint, no folder,
+    the lock released.
+
+    The diverging sweep runs the toy target of ``tests/toy_sweep_target.py`` (the exit-2 path is the
+    shared sweep command's, whatever the target): gradient descent with ``lr`` 0.9 and 1.0 on
+    curvature 4 multiplies the error by -2.6 and -3 per step, so 500 float32 steps overflow to inf
+    and then NaN in both metrics. (Before: online-thesis with learning rates of 1e30, 12.9 s of
+    compiles on the 2-core machine for the same exit-2 path.)"""
     import json
 
-    from jaxcal.cli.sweep import sweep_lock, sweep_lock_path
+    import toy_sweep_target
 
-    (tmp_path / "s.json").write_text(json.dumps({"grid": {"acc_lr": [1e30, 1e35]}, "fixed": {"gyr_lr": 1e30, "init_lr": 1e30},
-                                                 "dataset": {"n_train": 4, "n_val": 2, "n_samples": 11, "n_test_acc": 5,
-                                                             "n_test_gyr": 5}}))
+    from jaxcal.cli.sweep import sweep_lock, sweep_lock_path
+    from jaxcal.sweep import targets
+
+    (tmp_path / "s.json").write_text(json.dumps({"target": "toy-gd", "grid": {"lr": [0.9, 1.0]}, "fixed": {"steps": 500}}))
     out = tmp_path / "out"
     f = sweep_lock_path(out)
-    with sweep_lock(out):  # this process holds it; a second writer must be refused: fake one with our parent's pid
-        assert f.read_text() == str(os.getpid())
-        f.write_text(str(os.getppid()))  # a live process that is not us
-        refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,), needles=("another sweep", "process"))
-        f.write_text(str(os.getpid()))
-    assert not f.exists()
-    f.write_text("999999999")  # a process that does not exist: stale, taken over (the run then fails on its NaNs)
-    refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,),
-            needles=("every one of the 2 runs gave non-finite results",))
-    assert not f.exists()
+    targets.register(toy_sweep_target.TARGET)
+    try:
+        with sweep_lock(out):  # this process holds it; a second writer must be refused: fake one with our parent's pid
+            assert f.read_text() == str(os.getpid())
+            f.write_text(str(os.getppid()))  # a live process that is not us
+            refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,),
+                    needles=("another sweep", "process"))
+            f.write_text(str(os.getpid()))
+        assert not f.exists()
+        f.write_text("999999999")  # a process that does not exist: stale, taken over (the run then fails on its NaNs)
+        refused(capsys, ["sweep", tmp_path / "s.json", "--out", out, "--quiet"], absent=(out,),
+                needles=("every one of the 2 runs gave non-finite results",))
+        assert not f.exists()
+    finally:
+        del targets.TARGETS["toy-gd"]
 
 
 def test_sweep_results_published_together(tmp_path, monkeypatch):

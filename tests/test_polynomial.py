@@ -146,12 +146,14 @@ def test_affine_case_agrees_with_fit_affine():
 @pytest.mark.usefixtures("x64")
 @settings(max_examples=12, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
-@given(seed=st.integers(0, 2**16), size=st.integers(6, 60), ridge=st.sampled_from([0.0, 1e-4]),
+@given(seed=st.integers(0, 2**16), size=st.sampled_from([6, 19, 24, 60]), ridge=st.sampled_from([0.0, 1e-4]),
        sphere=st.booleans())
 def test_zero_weights_equal_dropping_the_rows(seed, size, ridge, sphere):
     """A 0/1 weight row over a padded set gives the fit of the selected rows alone, also when the
     subset is smaller than the 20 monomials (the minimum-norm answer is the same) and on sphere data
-    (static poses, where the cubic is not fully determined)."""
+    (static poses, where the cubic is not fully determined). Subset sizes from four values (below,
+    just below and above the 20 monomials, and many rows): each new size recompiles the fit of the
+    rows alone (sizes drawn from 6..60: 12.5 s on the 2-core machine)."""
     rng = np.random.default_rng(seed)
     n = 80
     u = rng.normal(size=(n, 3))
