@@ -40,7 +40,7 @@ def _bound_names(tree: ast.Module) -> dict[str, object]:
         elif isinstance(node, ast.Import):
             for a in node.names:
                 if a.name.split(".")[0] in ("jaxcal", "experiments"):
-                    out[a.asname or a.name.split(".")[0]] = importlib.import_module(a.asname and a.name or a.name.split(".")[0])
+                    out[a.asname or a.name.split(".")[0]] = importlib.import_module(a.name if a.asname else a.name.split(".")[0])
     return out
 
 
