@@ -451,6 +451,55 @@ def test_bias_standard_errors_go_into_the_yaml_exports_in_the_files_units(fmt, t
     assert "jaxcal_b_a_sd" not in _read_yaml(tmp_path / "p.yaml")["imu0"]
 
 
+def _jackknife(v: np.ndarray) -> np.ndarray:
+    """The delete-a-group jackknife standard error, written here from its formula (the test's own copy)."""
+    g = len(v)
+    return np.sqrt((g - 1) / g * ((v - v.mean(0)) ** 2).sum(0))
+
+
+@pytest.mark.parametrize("fmt", ["kalibr", "openvins"])
+def test_intrinsics_standard_errors_are_the_jackknife_of_the_files_own_numbers(fmt, tmp_path, capsys):
+    """Folds with diagonal ``A`` (held_out.fold_cals, the model's raw input) give the file's scale
+    matrices diagonal ``1 / (c a_k)`` per fold (c: the driver's conversion with the datasheet
+    scales, 1 / G0 for the accelerometer in the model's unit) and identity rotations, so
+    ``jaxcal_intrinsics_sd`` holds the closed-form jackknife of those on the diagonal and zero
+    elsewhere; the file and stderr say where it is; the file still imports."""
+    m = _model("linear")
+    rng = np.random.default_rng(5)
+    a = {"acc": np.array([6.1e-5, 6.0e-5, 6.2e-5]), "gyr": np.array([1.3e-4, 1.35e-4, 1.32e-4])}
+    fa = {s: a[s] * (1.0 + 1e-3 * rng.normal(size=(7, 3))) for s in a}
+    fold_cals = {s: {"A": [np.diag(v).tolist() for v in fa[s]], "b": rng.normal(0.0, 10.0, (7, 3)).tolist()} for s in a}
+    with_sd = CalibrationModel(m.method, m.sensors, m.state, {**m.meta, "held_out": {"fold_cals": {**fold_cals, "how": "test"}}})
+    save_model(with_sd, tmp_path / "m.npz")
+    acc_key, gyr_key = (("accelerometers", "M"), ("gyroscopes", "M")) if fmt == "kalibr" else (("Ta",), ("Tw",))
+    rot_key = ("T_i_b",) if fmt == "kalibr" else ("R_IMUtoACC",)
+
+    def at(d, key):
+        for k in key:
+            d = d[k]
+        return np.asarray(d, np.float64)
+
+    phys = {"acc": G0, "gyr": 1.0}  # m/s^2 per g; rad/s
+    for units, c in (("ros", {"acc": G0 / 16384.0, "gyr": 1.0 / 7505.7}), ("model", {"acc": 1.0, "gyr": 1.0})):
+        extra = ("--acc-lsb-per-g", "16384", "--gyr-lsb-per-rads", "7505.7") if units == "ros" else ()
+        out = tmp_path / f"{units}.yaml"
+        code, _, err = _run(capsys, "export", tmp_path / "m.npz", "--format", fmt, "--units", units, *extra, "--out", out)
+        assert code == 0, err
+        assert "standard errors, a delete-one-pose jackknife, are in jaxcal_intrinsics_sd" in err
+        sd = _read_yaml(out)["imu0"]["jaxcal_intrinsics_sd"]
+        assert "7 folds" in sd["how"]
+        for s, key in (("acc", acc_key), ("gyr", gyr_key)):
+            want = np.diag(_jackknife(1.0 / (fa[s] * phys[s] / c[s])))  # forward scale = 1 / the file's A diagonal
+            np.testing.assert_allclose(at(sd, key), want, rtol=1e-9, atol=1e-9 * want.max())
+        assert np.max(np.abs(at(sd, rot_key))) < 1e-12  # identity in every fold
+        code, _, err = _run(capsys, "import-model", fmt, out, "--out", tmp_path / f"{units}_back.npz")
+        assert code == 0, err
+    save_model(m, tmp_path / "plain.npz")
+    code, _, err = _run(capsys, "export", tmp_path / "plain.npz", "--format", fmt, "--out", tmp_path / "p.yaml")
+    assert code == 0 and "recorded no standard errors for them" in err, err
+    assert "jaxcal_intrinsics_sd" not in _read_yaml(tmp_path / "p.yaml")["imu0"]
+
+
 def test_yaml_exports_need_both_sensors_and_keep_their_keys(tmp_path, capsys):
     m = _model("linear")
     acc_only = CalibrationModel("linear", ("acc",), {"acc": m.state["acc"]}, {"units": {"acc": "LSB"}})

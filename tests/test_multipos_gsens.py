@@ -11,6 +11,7 @@ import re
 import jax
 import numpy as np
 import pytest
+import yaml
 
 from jaxcal import methods
 from jaxcal.cli import main
@@ -19,6 +20,7 @@ from jaxcal.methods.base import check_linear_state
 from jaxcal.methods.multipos import MultiposOptions
 from jaxcal.model_file import load_model, save_model
 from jaxcal.multipos.detect import traceless
+from jaxcal.multipos.heldout import jackknife_sd
 from jaxcal.recording import Recording, save_recording
 from jaxcal.simulate.recordings import multipos_recording
 
@@ -77,6 +79,18 @@ def test_cli_g_sensitivity_recovers_G_and_improves_the_held_out_figure(tmp_path,
                                [ho_plain["gyr_median_deg"], ho_plain["acc_rms_mg"]], rtol=1e-6)
     assert "held out without --g-sensitivity: " in out and "note: G left" not in out  # G helped here
     assert "without_g_sensitivity" not in ho_plain
+    # the folds' calibrations are stored for the exports' standard errors: their biases' jackknife is the
+    # stored bias_sd (the same kept folds), and the OpenVINS file carries its own numbers' jackknife
+    for s in ("acc", "gyr"):
+        folds = ho_plain["fold_cals"][s]
+        assert np.asarray(folds["A"]).shape == (len(folds["b"]), 3, 3)
+        np.testing.assert_allclose(jackknife_sd(np.asarray(folds["b"])), ho_plain["bias_sd"][s], rtol=1e-12)
+    code, _, err = _run(capsys, "export", tmp_path / "plain.npz", "--format", "openvins", "--out", tmp_path / "ov.yaml")
+    assert code == 0 and "jaxcal_intrinsics_sd" in err, err
+    imu = yaml.safe_load((tmp_path / "ov.yaml").read_text().split("\n", 1)[1])["imu0"]  # after %YAML:1.0
+    for key in ("Ta", "Tw"):  # measured relative sd of the diagonal: Ta 5.1e-5 to 8.8e-5, Tw 8.2e-4 to 4.2e-3
+        rel = np.diag(imu["jaxcal_intrinsics_sd"][key]) / np.abs(np.diag(imu[key]))
+        assert np.all((rel > 0) & (rel < 2e-2)), (key, rel)
     # printed and stored in (deg/s)/g
     assert "gyr: g-sensitivity G rows" in out and "(deg/s)/g" in out
     np.testing.assert_allclose(g.meta["parameters"]["gyr"]["g_sensitivity_degs_per_g"], np.degrees(G), rtol=1e-12)

@@ -32,8 +32,19 @@ from jaxcal.formats.linear_io import (
 )
 from jaxcal.formats.noise_yaml import NOISE_KEYS
 from jaxcal.formats.ros_input import RosInput
-from jaxcal.formats.yaml_doc import document_text, export_cals, imu0, imu_dict, parse_yaml, to_model_unit, yaml_bias_units, yaml_export
+from jaxcal.formats.yaml_doc import (
+    document_text,
+    export_cals,
+    imu0,
+    imu_dict,
+    intrinsics_sd,
+    parse_yaml,
+    to_model_unit,
+    yaml_bias_units,
+    yaml_export,
+)
 from jaxcal.methods import CalibrationModel, ModelError
+from jaxcal.sensor import LinearCal
 
 __all__ = ["FORMAT", "KALIBR_CONVENTION", "KALIBR_KEYS", "document", "from_kalibr", "to_kalibr"]
 
@@ -90,18 +101,19 @@ def _kalibr_dict(model: CalibrationModel, imu_fields: Mapping[str, Any] | None, 
                  datasheet: Mapping[str, Any] | None) -> tuple[dict[str, Any], RosInput | None]:
     """:func:`to_kalibr`'s dict and the ROS conversion it used (``None`` with ``units="model"``)."""
     cals, ros = export_cals(model, units, datasheet)
+    imu = {"model": "scale-misalignment", **_intrinsics(model, cals)}
+    return imu_dict(model, imu, cals, ros, imu_fields, KALIBR_KEYS, intrinsics_sd(model, ros, _intrinsics)), ros
+
+
+def _intrinsics(model: CalibrationModel, cals: Mapping[str, LinearCal]) -> dict[str, Any]:
+    """The calibration keys of :func:`to_kalibr`'s file from the ``x = A (y - b)`` it writes."""
     S_a, S_g = np.linalg.inv(cals["acc"].A), np.linalg.inv(cals["gyr"].A)
     M_a, C_i_b = lower_times_rotation(S_a)
     M_g, C_gyro_i = lower_times_rotation(S_g @ C_i_b.T)
     T_i_b = np.eye(4)
     T_i_b[:3, :3] = C_i_b
-    imu = {
-        "model": "scale-misalignment",
-        "T_i_b": rows(T_i_b),
-        "accelerometers": {"M": rows(M_a)},
-        "gyroscopes": {"M": rows(M_g), "A": rows(_kalibr_A(model, S_g, C_gyro_i @ C_i_b)), "C_gyro_i": rows(C_gyro_i)},
-    }
-    return imu_dict(model, imu, cals, ros, imu_fields, KALIBR_KEYS), ros
+    return {"T_i_b": rows(T_i_b), "accelerometers": {"M": rows(M_a)},
+            "gyroscopes": {"M": rows(M_g), "A": rows(_kalibr_A(model, S_g, C_gyro_i @ C_i_b)), "C_gyro_i": rows(C_gyro_i)}}
 
 
 def _kalibr_A(model: CalibrationModel, S_g: np.ndarray, C_gyro_b: np.ndarray) -> np.ndarray:

@@ -30,8 +30,19 @@ from jaxcal.formats.linear_io import (
     rows,
 )
 from jaxcal.formats.ros_input import RosInput
-from jaxcal.formats.yaml_doc import document_text, export_cals, imu0, imu_dict, parse_yaml, to_model_unit, yaml_bias_units, yaml_export
+from jaxcal.formats.yaml_doc import (
+    document_text,
+    export_cals,
+    imu0,
+    imu_dict,
+    intrinsics_sd,
+    parse_yaml,
+    to_model_unit,
+    yaml_bias_units,
+    yaml_export,
+)
 from jaxcal.methods import CalibrationModel, ModelError
+from jaxcal.sensor import LinearCal
 
 __all__ = ["FORMAT", "OPENVINS_CONVENTION", "OPENVINS_KEYS", "document", "from_openvins", "to_openvins"]
 
@@ -103,19 +114,16 @@ def _openvins_dict(model: CalibrationModel, imu_fields: Mapping[str, Any] | None
                    datasheet: Mapping[str, Any] | None) -> tuple[dict[str, Any], RosInput | None]:
     """:func:`to_openvins`'s dict and the ROS conversion it used (``None`` with ``units="model"``)."""
     cals, ros = export_cals(model, units, datasheet)
+    imu = {"T_i_b": rows(np.eye(4)), "time_offset": 0.0, "model": "kalibr", **_intrinsics(model, cals)}
+    return imu_dict(model, imu, cals, ros, imu_fields, OPENVINS_KEYS, intrinsics_sd(model, ros, _intrinsics)), ros
+
+
+def _intrinsics(model: CalibrationModel, cals: Mapping[str, LinearCal]) -> dict[str, Any]:
+    """The calibration keys of :func:`to_openvins`'s file from the ``x = A (y - b)`` it writes."""
     Ta, R_IMUtoACC = lower_times_rotation(np.linalg.inv(cals["acc"].A))
     Tw, R_IMUtoGYRO = lower_times_rotation(np.linalg.inv(cals["gyr"].A))
-    imu = {
-        "T_i_b": rows(np.eye(4)),
-        "time_offset": 0.0,
-        "model": "kalibr",
-        "Tw": rows(Tw),
-        "R_IMUtoGYRO": rows(R_IMUtoGYRO),
-        "Ta": rows(Ta),
-        "R_IMUtoACC": rows(R_IMUtoACC),
-        "Tg": rows(gsens_forward(model, np.linalg.inv(cals["gyr"].A))),
-    }
-    return imu_dict(model, imu, cals, ros, imu_fields, OPENVINS_KEYS), ros
+    return {"Tw": rows(Tw), "R_IMUtoGYRO": rows(R_IMUtoGYRO), "Ta": rows(Ta), "R_IMUtoACC": rows(R_IMUtoACC),
+            "Tg": rows(gsens_forward(model, np.linalg.inv(cals["gyr"].A)))}
 
 
 def from_openvins(doc: Any, drop_g_sensitivity: bool = False) -> Imported:

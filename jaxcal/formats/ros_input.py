@@ -117,13 +117,14 @@ IMU0_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 
 """Why a Kalibr / OpenVINS IMU file cannot hold a time offset or transform against a reference."""
 
 
-def not_carried(fmt: str, units: str, has_bias_sd: bool = False) -> list[str]:
+def not_carried(fmt: str, units: str, has_bias_sd: bool = False, has_intrinsics_sd: bool = False) -> list[str]:
     """What a linear model's ``fmt`` file (``kalibr``, ``openvins``) does not give the filter, one phrase each.
 
     Args:
         fmt: ``kalibr`` or ``openvins``.
         units: ``ros`` or ``model``.
         has_bias_sd: the file holds the biases' standard errors (``jaxcal_b_a_sd``, ``jaxcal_b_g_sd``).
+        has_intrinsics_sd: the file holds its intrinsics' standard errors (``jaxcal_intrinsics_sd``).
     """
     if fmt == "openvins":
         bias = ("the constant bias (kalibr_imu_chain.yaml has no bias key; OpenVINS reads an initial bias only as "
@@ -138,7 +139,10 @@ def not_carried(fmt: str, units: str, has_bias_sd: bool = False) -> list[str]:
               "delete-one-pose jackknife of this session's estimate, to which the part's turn-on repeatability adds)")
     else:
         sd = f"a standard deviation of the bias (this model's fit recorded none; {prior})"
-    out = [bias, sd,
+    where = ("their standard errors, a delete-one-pose jackknife, are in jaxcal_intrinsics_sd"
+             if has_intrinsics_sd else "this model's fit recorded no standard errors for them")
+    tool = "OpenVINS" if fmt == "openvins" else "Kalibr"
+    out = [bias, sd, f"a prior on the intrinsics ({tool} has no key for one; {where})",
            f"time_offset and T_i_b ({IMU0_LIMITS})"]
     if units == "model":
         out.append("the ROS units (written in the model's input unit: a ROS driver's m/s^2 and rad/s need --units ros)")

@@ -24,10 +24,11 @@ import yaml
 from jaxcal._version import __version__
 from jaxcal.constants import PHYS_UNIT
 from jaxcal.formats.base import Exported, ExportOptions
-from jaxcal.formats.linear_io import IMU_SENSORS, linear_cals, matrix, model_units, physical_cals
+from jaxcal.formats.linear_io import IMU_SENSORS, linear_cals, matrix, model_units, physical_cals, rows
 from jaxcal.formats.noise_yaml import missing_noise_keys, opencv_body
 from jaxcal.formats.ros_input import ROS_UNIT, UNITS, RosInput, not_carried, ros_cals, ros_input
 from jaxcal.methods import CalibrationModel, ModelError
+from jaxcal.multipos.heldout import jackknife_sd
 from jaxcal.safe_yaml import YamlLimitError, load_yaml
 from jaxcal.sensor import LinearCal
 
@@ -36,8 +37,10 @@ __all__ = [
     "export_cals",
     "exported",
     "file_bias_sd",
+    "fold_models",
     "imu0",
     "imu_dict",
+    "intrinsics_sd",
     "jaxcal_fields",
     "merge",
     "ordered",
@@ -96,6 +99,73 @@ def file_bias_sd(model: CalibrationModel, sensor: str, ros: RosInput | None = No
     return sd * np.abs(ros.per_model_unit[sensor]) if ros is not None else sd
 
 
+def fold_models(model: CalibrationModel) -> list[CalibrationModel]:
+    """``model`` once per held-out fold that the fit recorded (``meta["held_out"]["fold_cals"]``,
+    ``multipos``'s determined delete-one-pose folds), each with that fold's ``A``, ``b`` for both
+    sensors (a g-sensitivity stays the whole fit's); ``[]`` when the model records fewer than two
+    folds for either sensor.
+
+    Args:
+        model: the exported model.
+    """
+    rec = ((model.meta or {}).get("held_out") or {}).get("fold_cals") or {}
+    folds = {s: rec.get(s) for s in IMU_SENSORS}
+    if any(f is None for f in folds.values()):
+        return []
+    A = {s: np.asarray(folds[s]["A"], np.float64) for s in IMU_SENSORS}
+    b = {s: np.asarray(folds[s]["b"], np.float64) for s in IMU_SENSORS}
+    n = {len(A[s]) for s in IMU_SENSORS} | {len(b[s]) for s in IMU_SENSORS}
+    if len(n) != 1 or n.pop() < 2:
+        return []
+    out = []
+    for k in range(len(A["acc"])):
+        state = dict(model.state)
+        for s in IMU_SENSORS:
+            p = state[s]
+            p = dict(p._asdict()) if hasattr(p, "_asdict") else dict(p)
+            state[s] = {**p, "S": np.linalg.inv(A[s][k]), "b": b[s][k]}
+        out.append(CalibrationModel(model.method, model.sensors, state, model.meta))
+    return out
+
+
+def intrinsics_sd(model: CalibrationModel, ros: RosInput | None,
+                  intrinsics: Callable[[CalibrationModel, Mapping[str, LinearCal]], Mapping[str, Any]]) -> dict[str, Any] | None:
+    """The standard error of every number a format's ``intrinsics`` write, by the delete-a-group
+    jackknife (:func:`jaxcal.multipos.jackknife_sd`) over the model's held-out folds
+    (:func:`fold_models`), each fold's file parameters computed as the file's are: on the same input
+    (``ros``, the whole model's conversion, or the model's unit) by the same ``intrinsics``. The
+    result mirrors ``intrinsics``' mapping (matrices as rows), with ``how``; ``None`` without folds.
+
+    Args:
+        model: the exported model.
+        ros: the conversion the file uses (:func:`export_cals`), or ``None`` (the model's unit).
+        intrinsics: ``(model, cals) -> mapping`` of the format's calibration keys, ``cals`` as
+            :func:`export_cals` gives them.
+    """
+    folds = fold_models(model)
+    if not folds:
+        return None
+    vals = []
+    for m in folds:
+        phys = physical_cals(m)
+        vals.append(intrinsics(m, phys if ros is None else ros_cals(phys, ros)))
+
+    def sd(leaves: list) -> Any:
+        if isinstance(leaves[0], Mapping):
+            return {k: sd([v[k] for v in leaves]) for k in leaves[0] if sd([v[k] for v in leaves]) is not None}
+        try:
+            a = np.asarray(leaves, np.float64)
+        except (TypeError, ValueError):
+            return None  # a name, not a number
+        return rows(jackknife_sd(a)) if a.ndim == 3 else jackknife_sd(a).tolist()
+
+    out = sd(vals)
+    how = (((model.meta or {}).get("held_out") or {}).get("fold_cals") or {}).get("how", "the model's held-out folds")
+    out["how"] = (f"delete-one-pose jackknife over {len(folds)} folds ({how}): the standard error of each number "
+                  "above as this session determines it; a g-sensitivity is held at the whole fit's value")
+    return out
+
+
 def export_cals(model: CalibrationModel, units: str, datasheet: Mapping[str, Any] | None) -> tuple[dict[str, LinearCal], RosInput | None]:
     """``acc``, ``gyr`` -> the ``x = A (y - b)`` a YAML export writes (m/s^2, rad/s), and the ROS conversion.
 
@@ -121,10 +191,12 @@ def export_cals(model: CalibrationModel, units: str, datasheet: Mapping[str, Any
 
 
 def imu_dict(model: CalibrationModel, imu: dict[str, Any], cals: Mapping[str, LinearCal], ros: RosInput | None,
-             imu_fields: Mapping[str, Any] | None, order: tuple[str, ...]) -> dict[str, Any]:
-    """``{"imu0": ...}`` of a YAML export: the format's ``imu`` keys, then :func:`jaxcal_fields`, then the
-    caller's ``imu_fields`` (:func:`merge`), in ``order`` (:func:`ordered`)."""
-    return {"imu0": ordered(merge({**imu, **jaxcal_fields(model, cals, ros)}, imu_fields), order)}
+             imu_fields: Mapping[str, Any] | None, order: tuple[str, ...], sd: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """``{"imu0": ...}`` of a YAML export: the format's ``imu`` keys, then :func:`jaxcal_fields` (and
+    ``jaxcal_intrinsics_sd``: ``sd``, :func:`intrinsics_sd`, when given), then the caller's
+    ``imu_fields`` (:func:`merge`), in ``order`` (:func:`ordered`)."""
+    extra = {} if sd is None else {"jaxcal_intrinsics_sd": dict(sd)}
+    return {"imu0": ordered(merge({**imu, **jaxcal_fields(model, cals, ros), **extra}, imu_fields), order)}
 
 
 def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple[dict[str, Any], RosInput | None]],
@@ -132,7 +204,8 @@ def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple
     """A YAML export's file: ``build(model, noise, units, datasheet) -> (dict, RosInput | None)``, with the
     header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
     d, ros = build(model, options.noise, options.units, options.datasheet)
-    lost = not_carried(fmt, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS))
+    lost = not_carried(fmt, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS),
+                       has_intrinsics_sd="jaxcal_intrinsics_sd" in d["imu0"])
     return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
 
 

@@ -45,7 +45,7 @@ from jaxcal.multipos import (
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "bias_sd", "detect_options", "determined_folds", "fit", "heldout", "multipos_config",
+__all__ = ["METHOD", "MultiposOptions", "bias_sd", "detect_options", "determined_folds", "fit", "fold_cals", "heldout", "multipos_config",
            "quality"]
 
 
@@ -252,7 +252,7 @@ def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | 
             "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None,
             "how": how + ("; turns not used by the folds" if options.turns else ""),
             "not_held_out": {"poses": np.flatnonzero(~acc_ok).tolist(), "transitions": np.flatnonzero(~gyr_ok).tolist()},
-            "bias_sd": bias_sd(ho, acc_ok, kept)}
+            "bias_sd": bias_sd(ho, acc_ok, kept), "fold_cals": fold_cals(ho, acc_ok, kept)}
 
 
 def bias_sd(ho: Any, acc_ok: np.ndarray, kept: Mapping[str, Any]) -> dict[str, Any]:
@@ -273,6 +273,27 @@ def bias_sd(ho: Any, acc_ok: np.ndarray, kept: Mapping[str, Any]) -> dict[str, A
         out[s] = None if s in kept or not np.all(np.isfinite(sd)) else sd.tolist()
     out["how"] = (f"delete-one-pose jackknife over {int(acc_ok.sum())} poses: the standard error of this session's "
                   "estimate (between-pose spread included); a part's turn-on bias repeatability adds to it")
+    return out
+
+
+def fold_cals(ho: Any, acc_ok: np.ndarray, kept: Mapping[str, Any]) -> dict[str, Any]:
+    """Each determined leave-one-pose-out fold's calibration ``x = A (y - b)`` (model input units), per
+    sensor ``{"A": (F, 3, 3), "b": (F, 3)}`` as lists; a sensor the fit kept at its starting point
+    (``--partial``) has ``None``. The exports jackknife their own parameters over these
+    (:func:`jaxcal.formats.yaml_doc.intrinsics_sd`): the file's matrices are non-linear in ``A``, so their
+    standard errors come from the folds, not from ``A``'s.
+
+    Args:
+        ho: :func:`jaxcal.multipos.leave_poses_out`'s result, one fold per pose.
+        acc_ok: (P,) the folds that determine the fit (:func:`determined_folds`).
+        kept: ``meta["fit_quality"]["partial"]``.
+    """
+    out: dict[str, Any] = {}
+    for s, A, b in (("acc", ho.acc_A, ho.acc_bias), ("gyr", ho.gyr_A, ho.gyr_bias)):
+        A, b = np.asarray(A, np.float64)[acc_ok], np.asarray(b, np.float64)[acc_ok]
+        ok = s not in kept and len(A) >= 2 and np.all(np.isfinite(A)) and np.all(np.isfinite(b))
+        out[s] = {"A": A.tolist(), "b": b.tolist()} if ok else None
+    out["how"] = f"the {int(acc_ok.sum())} determined delete-one-pose folds of the held-out figure"
     return out
 
 

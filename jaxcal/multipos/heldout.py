@@ -22,7 +22,8 @@ class HeldOut(NamedTuple):
     """Leave-poses-out scores: ``acc_err`` (P,) ``| |f| - 1 |`` in g of each pose from the fold
     that left it out, ``gyr_err`` (J,) the carried-gravity angle (rad) of each transition from
     the fold that left it out (NaN for unusable transitions), and the fold of each; ``acc_bias``,
-    ``gyr_bias`` (F, 3) each fold's fitted biases (input units), for :func:`jackknife_sd`."""
+    ``gyr_bias`` (F, 3) each fold's fitted biases (input units) and ``acc_A``, ``gyr_A`` (F, 3, 3)
+    its ``A`` of ``x = A (y - b)``, for :func:`jackknife_sd`."""
 
     acc_err: np.ndarray
     gyr_err: np.ndarray
@@ -30,6 +31,8 @@ class HeldOut(NamedTuple):
     trans_fold: np.ndarray
     acc_bias: np.ndarray | None = None
     gyr_bias: np.ndarray | None = None
+    acc_A: np.ndarray | None = None
+    gyr_A: np.ndarray | None = None
 
 
 def fold_ids(n: int, n_folds: int) -> np.ndarray:
@@ -45,16 +48,18 @@ def fold_ids(n: int, n_folds: int) -> np.ndarray:
 @partial(jax.jit, static_argnames=("config", "batch"))
 def fold_scores(
     d: MultiposData, config: MultiposConfig, aw: jax.Array, gw: jax.Array, batch: int
-) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+) -> tuple[jax.Array, ...]:
     """Every fold's fit (weights ``aw`` (F, P), ``gw`` (F, J)) and its scores on all poses (F, P)
-    and transitions (F, J), and its accelerometer and gyroscope biases (F, 3) each, ``batch`` folds
+    and transitions (F, J), its accelerometer and gyroscope biases (F, 3) each and their ``A``
+    (F, 3, 3) each, ``batch`` folds
     at a time in one ``vmap`` (``lax.map``; 1: one after another). The data is an argument, not a
     closure constant: one compilation per shape, config and batch (the persistent cache keeps it),
     not one per call."""
 
-    def one(weights: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    def one(weights: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, ...]:
         f = fit_prepared(d, config, acc_w=weights[0], gyr_w=weights[1])
-        return acc_norm_errors(f.acc, d.pose_acc), gyro_angle_errors(f.gyr, f.gsens, f.acc, d), f.acc.b, f.gyr.b
+        return (acc_norm_errors(f.acc, d.pose_acc), gyro_angle_errors(f.gyr, f.gsens, f.acc, d), f.acc.b, f.gyr.b,
+                f.acc.A, f.gyr.A)
 
     return jax.lax.map(one, (aw, gw), batch_size=batch if batch > 1 else None)
 
@@ -92,10 +97,10 @@ def leave_poses_out(
     aw = jnp.asarray((pf[None, :] != np.arange(F)[:, None]).astype(np.float64))
     gw = jnp.asarray((tf[None, :] != np.arange(F)[:, None]).astype(np.float64))
 
-    ea, eg, ba, bg = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
+    ea, eg, ba, bg, Aa, Ag = (np.asarray(x) for x in fold_scores(d, config, aw, gw, fold_batch(F) if batch is None else int(batch)))
     acc_err = ea[pf, np.arange(P)]
     gyr_err = np.where(np.asarray(data.seg_ok), eg[tf, np.arange(P - 1)], np.nan)
-    return HeldOut(acc_err, gyr_err, pf, tf, ba, bg)
+    return HeldOut(acc_err, gyr_err, pf, tf, ba, bg, Aa, Ag)
 
 
 def jackknife_sd(values: np.ndarray, keep: np.ndarray | None = None) -> np.ndarray:
