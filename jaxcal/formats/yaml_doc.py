@@ -152,7 +152,8 @@ def intrinsics_sd(model: CalibrationModel, ros: RosInput | None,
 
     def sd(leaves: list) -> Any:
         if isinstance(leaves[0], Mapping):
-            return {k: sd([v[k] for v in leaves]) for k in leaves[0] if sd([v[k] for v in leaves]) is not None}
+            out = {k: sd([v[k] for v in leaves]) for k in leaves[0]}
+            return {k: v for k, v in out.items() if v is not None}
         try:
             a = np.asarray(leaves, np.float64)
         except (TypeError, ValueError):
@@ -160,9 +161,8 @@ def intrinsics_sd(model: CalibrationModel, ros: RosInput | None,
         return rows(jackknife_sd(a)) if a.ndim == 3 else jackknife_sd(a).tolist()
 
     out = sd(vals)
-    how = (((model.meta or {}).get("held_out") or {}).get("fold_cals") or {}).get("how", "the model's held-out folds")
-    out["how"] = (f"delete-one-pose jackknife over {len(folds)} folds ({how}): the standard error of each number "
-                  "above as this session determines it; a g-sensitivity is held at the whole fit's value")
+    out["how"] = (f"delete-one-pose jackknife over the {len(folds)} folds of held_out.fold_cals: the standard error "
+                  "of each number above as this session determines it; a g-sensitivity is held at the whole fit's value")
     return out
 
 
