@@ -322,6 +322,15 @@ def _at_point(sensor: str, theta_lin: np.ndarray) -> list[str]:
     return out
 
 
+def _restart(name: str, decision: Decision | None, why: str, warn: str) -> DropOffset | Unskew:
+    """The answer when an effect of the linearisation point (:func:`_at_point`) is demoted, however
+    (its held-out step, an implausible estimate, its frequency bands): the model holds that effect
+    whatever is fitted, so the pass starts again without it: a time offset answers
+    :class:`DropOffset` (reported with ``why`` and ``warn``), a clock skew :class:`Unskew` (the next
+    pass, linearised at 0, decides and reports it)."""
+    return DropOffset(_demote(decision, why, name), warn) if name == "time_offset" else Unskew()
+
+
 def _heldout_paths(kind: str, sd: SensorData, sel: Selection, theta_lin: np.ndarray, order: list[str]) -> tuple[list[float], list[float]]:
     """The held-out rms (GLS and OLS fits) as the effects of ``order`` are added one by one. The
     system is linearised at ``theta_lin``, so it holds the point's effects (a time offset, a clock
@@ -332,9 +341,9 @@ def _heldout_paths(kind: str, sd: SensorData, sel: Selection, theta_lin: np.ndar
     path = heldout_rms_path(S, kind, s, order)
     path_ols = heldout_rms_path(S, kind, s, order, fit="ols")
     point = _at_point(s, theta_lin)
-    # the point's effects come first (preselected); one removed as implausible (a time offset) leaves
-    # only the baseline at zero to replace, as before clock skews were linearised at
-    for k in range(len(point) if order[: len(point)] == point else min(len(point), 1)):
+    # the point's effects come first (preselected); demoting one restarts the pass (:func:`_restart`)
+    assert order[: len(point)] == point, (order, point)
+    for k in range(len(point)):
         theta_k = theta_lin.copy()
         for n in point[k:]:
             sl = E.slot(s, n)
@@ -371,9 +380,9 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
     says where the residual lives), and no named estimate of the joint refit lies outside its
     plausible range (:data:`jaxcal.diagnose.effects.PLAUSIBLE_RANGE`; outside, it is a
     misspecification warning). Effects in ``force`` are estimates on request, not gated.
-    A time offset that fails the promise at a non-zero linearisation point answers
-    :class:`DropOffset`: the model is linearised at that offset, so the pass starts again without;
-    a clock skew at the linearisation point that is not named answers :class:`Unskew` alike.
+    An effect of the linearisation point (a non-zero time offset or clock skew) that is demoted in
+    any of these ways answers a restart instead (:func:`_restart`): the model is linearised at it, so
+    the pass starts again without it (:class:`DropOffset`, :class:`Unskew`).
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -387,7 +396,7 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         huber: the joint refit's outlier threshold (:func:`~jaxcal.diagnose.refit.refit`); None:
             plain least squares.
     """
-    s, nb, fit_rows, tau_lin, unit = sd.sensor, E.N_BASE[kind], sel.fit_rows, off.tau_lin, UNIT_OF[sd.sensor]
+    s, nb, fit_rows, unit = sd.sensor, E.N_BASE[kind], sel.fit_rows, UNIT_OF[sd.sensor]
     decisions = dict(det.decisions)
     warnings: list[str] = []
     order = list(sel.selected)
@@ -399,7 +408,7 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         if not d.selected and d.reason.startswith("whitened test passes"):
             warnings.append(f"{s} {name}: significant in the whitened test (log10 p {d.log10_p:.1f}) but the physical held-out rms "
                             f"does not fall (change {d.heldout_rms_change:+.3g} {unit}), so it is not named; the residual lives {where_text}")
-    skew_at_point = "clock_skew" in _at_point(s, lin.theta_lin)
+    point = [n for n in _at_point(s, lin.theta_lin) if n not in force]  # demoting one of these restarts the pass
     while True:
         path, path_ols = _heldout_paths(kind, sd, sel, lin.theta_lin, order)
         worse = [k for k in range(len(order)) if order[k] not in force and not path[k + 1] < path[k]]
@@ -409,10 +418,8 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
             why = f"held-out rms does not fall when it is added ({path[k]:.5g} -> {path[k + 1]:.5g})"
             warn = (f"{s} {name}: significant in the whitened test but it does not lower the physical held-out rms "
                     f"({path[k]:.5g} -> {path[k + 1]:.5g} {unit}), so it is not named; the residual lives {where_text}")
-            if name == "time_offset" and tau_lin != 0.0:
-                return DropOffset(_demote(decisions[name], why), warn)
-            if name == "clock_skew" and skew_at_point:
-                return Unskew()
+            if name in point:
+                return _restart(name, decisions.get(name), why, warn)
             decisions[name] = _demote(decisions[name], why)
             warnings.append(warn)
             continue
@@ -421,30 +428,34 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         bad = [b for b in bad if b[0] > 1.0]
         if bad:
             ratio, name = max(bad)
-            if name == "clock_skew" and skew_at_point:
-                return Unskew()
-            order.remove(name)
             lim = E.PLAUSIBLE_RANGE[(name, s)]
             est = E.params_from_theta(s, name, final_all.theta)
-            decisions[name] = _demote(decisions.get(name), f"implausible estimate {est} (beyond |{lim:g}| {E.UNITS[(name, s)]})", name)
-            warnings.append(f"{s} {name}: misspecification - its estimate {est} lies {ratio:.3g}x beyond the plausible "
-                            f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
-                            f"recording there; the residual lives {where_text}")
+            why = f"implausible estimate {est} (beyond |{lim:g}| {E.UNITS[(name, s)]})"
+            warn = (f"{s} {name}: misspecification - its estimate {est} lies {ratio:.3g}x beyond the plausible "
+                    f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
+                    f"recording there; the residual lives {where_text}")
+            if name in point:
+                return _restart(name, decisions.get(name), why, warn)
+            order.remove(name)
+            decisions[name] = _demote(decisions.get(name), why, name)
+            warnings.append(warn)
             continue
         final_all, bands = pool_named(kind, s, sd.inp, fit_rows, final_all, order, pool)
         weak = _band_weak(s, final_all, bands, force, level)
         if weak:
             name = weak[0]
-            if name == "clock_skew" and skew_at_point:
-                return Unskew()
-            order.remove(name)
             sd_b = np.sqrt(np.asarray(bands[name]["tau2"]))
-            decisions[name] = _demote(decisions.get(name), f"not significant once the disagreement of its frequency bands is counted "
-                                      f"(between-band sd {_fmt3(sd_b)} {E.UNITS[(name, s)]})", name)
-            warnings.append(f"{s} {name}: its estimate differs between frequency bands of the motion (between-band sd "
-                            f"{_fmt3(sd_b)} {E.UNITS[(name, s)]}), so with that spread in its interval it is not significant and "
-                            f"is not named: physics the vocabulary lacks (translational acceleration, different sensor filters) "
-                            f"moves it; the residual lives {where_text}")
+            why = (f"not significant once the disagreement of its frequency bands is counted "
+                   f"(between-band sd {_fmt3(sd_b)} {E.UNITS[(name, s)]})")
+            warn = (f"{s} {name}: its estimate differs between frequency bands of the motion (between-band sd "
+                    f"{_fmt3(sd_b)} {E.UNITS[(name, s)]}), so with that spread in its interval it is not significant and "
+                    f"is not named: physics the vocabulary lacks (translational acceleration, different sensor filters) "
+                    f"moves it; the residual lives {where_text}")
+            if name in point:
+                return _restart(name, decisions.get(name), why, warn)
+            order.remove(name)
+            decisions[name] = _demote(decisions.get(name), why, name)
+            warnings.append(warn)
             continue
         return Named(order, decisions, warnings, base_all, final_all, path, path_ols, bands or None)
 
