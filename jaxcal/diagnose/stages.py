@@ -208,9 +208,9 @@ def select_effects(kind: str, sd: SensorData, cfg: SelectConfig, level: float, o
     if start.relin is not None:
         d = start.relin[1]
         decisions["time_offset"] = d._replace(reason=d.reason + f"; model relinearised at the refit offset {off.tau_lin * 1e3:.2f} ms and the other effects reselected")
-    if start.skew_lin is not None and "clock_skew" in off.preselected:
+    if off.skew_lin is not None:
         d = start.skew_lin[1]
-        decisions["clock_skew"] = d._replace(reason=d.reason + f"; model relinearised at the refit clock skew {start.skew_lin[0]:.2f} ppm and the other effects reselected")
+        decisions["clock_skew"] = d._replace(reason=d.reason + f"; model relinearised at the refit clock skew {off.skew_lin:.2f} ppm and the other effects reselected")
     return Selection(ars, S, selected, decisions, th, cols, full, resid, fit_rows, sat_info)
 
 
@@ -492,8 +492,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     """
     level = cfg.alpha / n_tests
     off = coarse_offset(kind, sd, cfg, level, start, force)
-    skew_lin = start.skew_lin[0] if start.skew_lin is not None and "clock_skew" in off.preselected else 0.0
-    lin = linearise(kind, sd, off.tau_lin, start.edge_shift, skew_lin)
+    lin = linearise(kind, sd, off.tau_lin, start.edge_shift, 0.0 if off.skew_lin is None else off.skew_lin)
     sel = select_effects(kind, sd, cfg, level, off, lin, start, force)
     det = detectability(kind, sd, cfg, level, off, lin, sel, meas)
     named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level, cfg.huber)
