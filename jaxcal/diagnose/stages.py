@@ -331,6 +331,19 @@ def _restart(name: str, decision: Decision | None, why: str, warn: str) -> DropO
     return DropOffset(_demote(decision, why, name), warn) if name == "time_offset" else Unskew()
 
 
+def _drop(name: str, point: list[str], order: list[str], decisions: dict, warnings: list[str], why: str,
+          warn: str) -> DropOffset | Unskew | None:
+    """Stage 5's one answer to an effect that breaks the promise: an effect of the linearisation
+    point (``point``) restarts the pass (:func:`_restart`); any other leaves ``order``, its decision
+    is demoted with ``why`` and ``warn`` joins ``warnings`` (in place), and ``None`` says go on."""
+    if name in point:
+        return _restart(name, decisions.get(name), why, warn)
+    order.remove(name)
+    decisions[name] = _demote(decisions.get(name), why, name)
+    warnings.append(warn)
+    return None
+
+
 def _heldout_paths(kind: str, sd: SensorData, sel: Selection, theta_lin: np.ndarray, order: list[str]) -> tuple[list[float], list[float]]:
     """The held-out rms (GLS and OLS fits) as the effects of ``order`` are added one by one. The
     system is linearised at ``theta_lin``, so it holds the point's effects (a time offset, a clock
@@ -414,14 +427,13 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         worse = [k for k in range(len(order)) if order[k] not in force and not path[k + 1] < path[k]]
         if worse:
             k = worse[0]
-            name = order.pop(k)
+            name = order[k]
             why = f"held-out rms does not fall when it is added ({path[k]:.5g} -> {path[k + 1]:.5g})"
             warn = (f"{s} {name}: significant in the whitened test but it does not lower the physical held-out rms "
                     f"({path[k]:.5g} -> {path[k + 1]:.5g} {unit}), so it is not named; the residual lives {where_text}")
-            if name in point:
-                return _restart(name, decisions.get(name), why, warn)
-            decisions[name] = _demote(decisions[name], why)
-            warnings.append(warn)
+            restart = _drop(name, point, order, decisions, warnings, why, warn)
+            if restart is not None:
+                return restart
             continue
         final_all = _joint_refit(kind, sd, lin, sel, order, base_all, huber)
         bad = [(E.implausible(s, n, final_all.theta), n) for n in order if n not in force]
@@ -434,11 +446,9 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
             warn = (f"{s} {name}: misspecification - its estimate {est} lies {ratio:.3g}x beyond the plausible "
                     f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
                     f"recording there; the residual lives {where_text}")
-            if name in point:
-                return _restart(name, decisions.get(name), why, warn)
-            order.remove(name)
-            decisions[name] = _demote(decisions.get(name), why, name)
-            warnings.append(warn)
+            restart = _drop(name, point, order, decisions, warnings, why, warn)
+            if restart is not None:
+                return restart
             continue
         final_all, bands = pool_named(kind, s, sd.inp, fit_rows, final_all, order, pool)
         weak = _band_weak(s, final_all, bands, force, level)
@@ -451,11 +461,9 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
                     f"{_fmt3(sd_b)} {E.UNITS[(name, s)]}), so with that spread in its interval it is not significant and "
                     f"is not named: physics the vocabulary lacks (translational acceleration, different sensor filters) "
                     f"moves it; the residual lives {where_text}")
-            if name in point:
-                return _restart(name, decisions.get(name), why, warn)
-            order.remove(name)
-            decisions[name] = _demote(decisions.get(name), why, name)
-            warnings.append(warn)
+            restart = _drop(name, point, order, decisions, warnings, why, warn)
+            if restart is not None:
+                return restart
             continue
         return Named(order, decisions, warnings, base_all, final_all, path, path_ols, bands or None)
 
