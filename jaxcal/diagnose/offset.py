@@ -38,13 +38,16 @@ class Start(NamedTuple):
 
 class Offset(NamedTuple):
     """Stage 1: the linearisation offset ``tau_lin`` (s), the coarse search's ``(stat, log10 p)``
-    when it found one, the candidates, those entering the selection preselected, and warnings."""
+    when it found one, the candidates, those entering the selection preselected, warnings, and
+    ``skew_lin``: the clock skew (ppm) the pass is linearised at, preselected (``None``: at 0).
+    Decided here once; stages 2 and 3 read it."""
 
     tau_lin: float
     coarse: tuple[float, float] | None
     candidates: list[str]
     preselected: list[str]
     warnings: list[str]
+    skew_lin: float | None = None
 
 
 def coarse_offset(kind: str, sd: SensorData, cfg: SelectConfig, level: float, start: Start,
@@ -93,10 +96,12 @@ def coarse_offset(kind: str, sd: SensorData, cfg: SelectConfig, level: float, st
             tau_lin = _refine_tau(kind, sd, tau_c, ars, rows, dt)
             pre.append("time_offset")
             warnings.append(f"{s}: coarse search found a large time offset of {tau_lin * 1e3:.1f} ms ({lag} samples, refined to a fraction of a sample); refined below")
+    skew_lin = None
     if start.skew_lin is not None and "clock_skew" in cands:
+        skew_lin = float(start.skew_lin[0])
         pre.append("clock_skew")  # after the time offset: the held-out path adds the linearisation point's effects first
     pre += [c for c in force if c not in pre and c in cands]
-    return Offset(tau_lin, coarse, cands, pre, warnings)
+    return Offset(tau_lin, coarse, cands, pre, warnings, skew_lin)
 
 
 def edge_count(tau: float, dt: float, shift: float = 0.0, margin: int = 3) -> int:

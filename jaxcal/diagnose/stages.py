@@ -208,9 +208,9 @@ def select_effects(kind: str, sd: SensorData, cfg: SelectConfig, level: float, o
     if start.relin is not None:
         d = start.relin[1]
         decisions["time_offset"] = d._replace(reason=d.reason + f"; model relinearised at the refit offset {off.tau_lin * 1e3:.2f} ms and the other effects reselected")
-    if start.skew_lin is not None and "clock_skew" in off.preselected:
+    if off.skew_lin is not None:
         d = start.skew_lin[1]
-        decisions["clock_skew"] = d._replace(reason=d.reason + f"; model relinearised at the refit clock skew {start.skew_lin[0]:.2f} ppm and the other effects reselected")
+        decisions["clock_skew"] = d._replace(reason=d.reason + f"; model relinearised at the refit clock skew {off.skew_lin:.2f} ppm and the other effects reselected")
     return Selection(ars, S, selected, decisions, th, cols, full, resid, fit_rows, sat_info)
 
 
@@ -322,6 +322,28 @@ def _at_point(sensor: str, theta_lin: np.ndarray) -> list[str]:
     return out
 
 
+def _restart(name: str, decision: Decision | None, why: str, warn: str) -> DropOffset | Unskew:
+    """The answer when an effect of the linearisation point (:func:`_at_point`) is demoted, however
+    (its held-out step, an implausible estimate, its frequency bands): the model holds that effect
+    whatever is fitted, so the pass starts again without it: a time offset answers
+    :class:`DropOffset` (reported with ``why`` and ``warn``), a clock skew :class:`Unskew` (the next
+    pass, linearised at 0, decides and reports it)."""
+    return DropOffset(_demote(decision, why, name), warn) if name == "time_offset" else Unskew()
+
+
+def _drop(name: str, point: list[str], order: list[str], decisions: dict, warnings: list[str], why: str,
+          warn: str) -> DropOffset | Unskew | None:
+    """Stage 5's one answer to an effect that breaks the promise: an effect of the linearisation
+    point (``point``) restarts the pass (:func:`_restart`); any other leaves ``order``, its decision
+    is demoted with ``why`` and ``warn`` joins ``warnings`` (in place), and ``None`` says go on."""
+    if name in point:
+        return _restart(name, decisions.get(name), why, warn)
+    order.remove(name)
+    decisions[name] = _demote(decisions.get(name), why, name)
+    warnings.append(warn)
+    return None
+
+
 def _heldout_paths(kind: str, sd: SensorData, sel: Selection, theta_lin: np.ndarray, order: list[str]) -> tuple[list[float], list[float]]:
     """The held-out rms (GLS and OLS fits) as the effects of ``order`` are added one by one. The
     system is linearised at ``theta_lin``, so it holds the point's effects (a time offset, a clock
@@ -332,9 +354,9 @@ def _heldout_paths(kind: str, sd: SensorData, sel: Selection, theta_lin: np.ndar
     path = heldout_rms_path(S, kind, s, order)
     path_ols = heldout_rms_path(S, kind, s, order, fit="ols")
     point = _at_point(s, theta_lin)
-    # the point's effects come first (preselected); one removed as implausible (a time offset) leaves
-    # only the baseline at zero to replace, as before clock skews were linearised at
-    for k in range(len(point) if order[: len(point)] == point else min(len(point), 1)):
+    # the point's effects come first (preselected); demoting one restarts the pass (:func:`_restart`)
+    assert order[: len(point)] == point, (order, point)
+    for k in range(len(point)):
         theta_k = theta_lin.copy()
         for n in point[k:]:
             sl = E.slot(s, n)
@@ -371,9 +393,9 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
     says where the residual lives), and no named estimate of the joint refit lies outside its
     plausible range (:data:`jaxcal.diagnose.effects.PLAUSIBLE_RANGE`; outside, it is a
     misspecification warning). Effects in ``force`` are estimates on request, not gated.
-    A time offset that fails the promise at a non-zero linearisation point answers
-    :class:`DropOffset`: the model is linearised at that offset, so the pass starts again without;
-    a clock skew at the linearisation point that is not named answers :class:`Unskew` alike.
+    An effect of the linearisation point (a non-zero time offset or clock skew) that is demoted in
+    any of these ways answers a restart instead (:func:`_restart`): the model is linearised at it, so
+    the pass starts again without it (:class:`DropOffset`, :class:`Unskew`).
 
     Args:
         kind: baseline, ``"diag"`` or ``"affine"``.
@@ -387,7 +409,7 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         huber: the joint refit's outlier threshold (:func:`~jaxcal.diagnose.refit.refit`); None:
             plain least squares.
     """
-    s, nb, fit_rows, tau_lin, unit = sd.sensor, E.N_BASE[kind], sel.fit_rows, off.tau_lin, UNIT_OF[sd.sensor]
+    s, nb, fit_rows, unit = sd.sensor, E.N_BASE[kind], sel.fit_rows, UNIT_OF[sd.sensor]
     decisions = dict(det.decisions)
     warnings: list[str] = []
     order = list(sel.selected)
@@ -399,52 +421,49 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
         if not d.selected and d.reason.startswith("whitened test passes"):
             warnings.append(f"{s} {name}: significant in the whitened test (log10 p {d.log10_p:.1f}) but the physical held-out rms "
                             f"does not fall (change {d.heldout_rms_change:+.3g} {unit}), so it is not named; the residual lives {where_text}")
-    skew_at_point = "clock_skew" in _at_point(s, lin.theta_lin)
+    point = [n for n in _at_point(s, lin.theta_lin) if n not in force]  # demoting one of these restarts the pass
     while True:
         path, path_ols = _heldout_paths(kind, sd, sel, lin.theta_lin, order)
         worse = [k for k in range(len(order)) if order[k] not in force and not path[k + 1] < path[k]]
         if worse:
             k = worse[0]
-            name = order.pop(k)
+            name = order[k]
             why = f"held-out rms does not fall when it is added ({path[k]:.5g} -> {path[k + 1]:.5g})"
             warn = (f"{s} {name}: significant in the whitened test but it does not lower the physical held-out rms "
                     f"({path[k]:.5g} -> {path[k + 1]:.5g} {unit}), so it is not named; the residual lives {where_text}")
-            if name == "time_offset" and tau_lin != 0.0:
-                return DropOffset(_demote(decisions[name], why), warn)
-            if name == "clock_skew" and skew_at_point:
-                return Unskew()
-            decisions[name] = _demote(decisions[name], why)
-            warnings.append(warn)
+            restart = _drop(name, point, order, decisions, warnings, why, warn)
+            if restart is not None:
+                return restart
             continue
         final_all = _joint_refit(kind, sd, lin, sel, order, base_all, huber)
         bad = [(E.implausible(s, n, final_all.theta), n) for n in order if n not in force]
         bad = [b for b in bad if b[0] > 1.0]
         if bad:
             ratio, name = max(bad)
-            if name == "clock_skew" and skew_at_point:
-                return Unskew()
-            order.remove(name)
             lim = E.PLAUSIBLE_RANGE[(name, s)]
             est = E.params_from_theta(s, name, final_all.theta)
-            decisions[name] = _demote(decisions.get(name), f"implausible estimate {est} (beyond |{lim:g}| {E.UNITS[(name, s)]})", name)
-            warnings.append(f"{s} {name}: misspecification - its estimate {est} lies {ratio:.3g}x beyond the plausible "
-                            f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
-                            f"recording there; the residual lives {where_text}")
+            why = f"implausible estimate {est} (beyond |{lim:g}| {E.UNITS[(name, s)]})"
+            warn = (f"{s} {name}: misspecification - its estimate {est} lies {ratio:.3g}x beyond the plausible "
+                    f"{lim:g} {E.UNITS[(name, s)]} of a real part, so it is not named: the model does not fit this "
+                    f"recording there; the residual lives {where_text}")
+            restart = _drop(name, point, order, decisions, warnings, why, warn)
+            if restart is not None:
+                return restart
             continue
         final_all, bands = pool_named(kind, s, sd.inp, fit_rows, final_all, order, pool)
         weak = _band_weak(s, final_all, bands, force, level)
         if weak:
             name = weak[0]
-            if name == "clock_skew" and skew_at_point:
-                return Unskew()
-            order.remove(name)
             sd_b = np.sqrt(np.asarray(bands[name]["tau2"]))
-            decisions[name] = _demote(decisions.get(name), f"not significant once the disagreement of its frequency bands is counted "
-                                      f"(between-band sd {_fmt3(sd_b)} {E.UNITS[(name, s)]})", name)
-            warnings.append(f"{s} {name}: its estimate differs between frequency bands of the motion (between-band sd "
-                            f"{_fmt3(sd_b)} {E.UNITS[(name, s)]}), so with that spread in its interval it is not significant and "
-                            f"is not named: physics the vocabulary lacks (translational acceleration, different sensor filters) "
-                            f"moves it; the residual lives {where_text}")
+            why = (f"not significant once the disagreement of its frequency bands is counted "
+                   f"(between-band sd {_fmt3(sd_b)} {E.UNITS[(name, s)]})")
+            warn = (f"{s} {name}: its estimate differs between frequency bands of the motion (between-band sd "
+                    f"{_fmt3(sd_b)} {E.UNITS[(name, s)]}), so with that spread in its interval it is not significant and "
+                    f"is not named: physics the vocabulary lacks (translational acceleration, different sensor filters) "
+                    f"moves it; the residual lives {where_text}")
+            restart = _drop(name, point, order, decisions, warnings, why, warn)
+            if restart is not None:
+                return restart
             continue
         return Named(order, decisions, warnings, base_all, final_all, path, path_ols, bands or None)
 
@@ -481,8 +500,7 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     """
     level = cfg.alpha / n_tests
     off = coarse_offset(kind, sd, cfg, level, start, force)
-    skew_lin = start.skew_lin[0] if start.skew_lin is not None and "clock_skew" in off.preselected else 0.0
-    lin = linearise(kind, sd, off.tau_lin, start.edge_shift, skew_lin)
+    lin = linearise(kind, sd, off.tau_lin, start.edge_shift, 0.0 if off.skew_lin is None else off.skew_lin)
     sel = select_effects(kind, sd, cfg, level, off, lin, start, force)
     det = detectability(kind, sd, cfg, level, off, lin, sel, meas)
     named = name_effects(kind, sd, off, lin, sel, det, force, cfg.band_pool, level, cfg.huber)
