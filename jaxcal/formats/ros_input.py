@@ -117,14 +117,15 @@ IMU0_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 
 """Why a Kalibr / OpenVINS IMU file cannot hold a time offset or transform against a reference."""
 
 
-def not_carried(fmt: str, units: str, has_bias_sd: bool = False, has_intrinsics_sd: bool = False) -> list[str]:
+def not_carried(fmt: str, units: str, has_bias_sd: bool = False, intrinsics_folds: int = 0) -> list[str]:
     """What a linear model's ``fmt`` file (``kalibr``, ``openvins``) does not give the filter, one phrase each.
 
     Args:
         fmt: ``kalibr`` or ``openvins``.
         units: ``ros`` or ``model``.
         has_bias_sd: the file holds the biases' standard errors (``jaxcal_b_a_sd``, ``jaxcal_b_g_sd``).
-        has_intrinsics_sd: the file holds its intrinsics' standard errors (``jaxcal_intrinsics_sd``).
+        intrinsics_folds: the number of held-out folds whose jackknife gave the file's
+            ``jaxcal_intrinsics_sd`` (0: the file has none).
     """
     if fmt == "openvins":
         bias = ("the constant bias (kalibr_imu_chain.yaml has no bias key; OpenVINS reads an initial bias only as "
@@ -139,8 +140,9 @@ def not_carried(fmt: str, units: str, has_bias_sd: bool = False, has_intrinsics_
               "delete-one-pose jackknife of this session's estimate, to which the part's turn-on repeatability adds)")
     else:
         sd = f"a standard deviation of the bias (this model's fit recorded none; {prior})"
-    where = ("their standard errors, a delete-one-pose jackknife, are in jaxcal_intrinsics_sd"
-             if has_intrinsics_sd else "this model's fit recorded no standard errors for them")
+    where = (f"their standard errors, a delete-one-pose jackknife over {intrinsics_folds} folds of the file's own numbers "
+             "(a g-sensitivity held at the whole fit's value), are in jaxcal_intrinsics_sd"
+             if intrinsics_folds else "this model's fit recorded no standard errors for them")
     tool = "OpenVINS" if fmt == "openvins" else "Kalibr"
     out = [bias, sd, f"a prior on the intrinsics ({tool} has no key for one; {where})",
            f"time_offset and T_i_b ({IMU0_LIMITS})"]

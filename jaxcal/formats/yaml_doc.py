@@ -134,7 +134,8 @@ def intrinsics_sd(model: CalibrationModel, ros: RosInput | None,
     jackknife (:func:`jaxcal.multipos.jackknife_sd`) over the model's held-out folds
     (:func:`fold_models`), each fold's file parameters computed as the file's are: on the same input
     (``ros``, the whole model's conversion, or the model's unit) by the same ``intrinsics``. The
-    result mirrors ``intrinsics``' mapping (matrices as rows), with ``how``; ``None`` without folds.
+    result mirrors ``intrinsics``' mapping (matrices as rows; numbers only, which OpenCV's reader
+    takes); ``None`` without folds. The file's header says how it was made (:func:`not_carried`).
 
     Args:
         model: the exported model.
@@ -160,10 +161,7 @@ def intrinsics_sd(model: CalibrationModel, ros: RosInput | None,
             return None  # a name, not a number
         return rows(jackknife_sd(a)) if a.ndim == 3 else jackknife_sd(a).tolist()
 
-    out = sd(vals)
-    out["how"] = (f"delete-one-pose jackknife over the {len(folds)} folds of held_out.fold_cals: the standard error "
-                  "of each number above as this session determines it; a g-sensitivity is held at the whole fit's value")
-    return out
+    return sd(vals)
 
 
 def export_cals(model: CalibrationModel, units: str, datasheet: Mapping[str, Any] | None) -> tuple[dict[str, LinearCal], RosInput | None]:
@@ -205,7 +203,7 @@ def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple
     header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
     d, ros = build(model, options.noise, options.units, options.datasheet)
     lost = not_carried(fmt, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS),
-                       has_intrinsics_sd="jaxcal_intrinsics_sd" in d["imu0"])
+                       intrinsics_folds=len(fold_models(model)) if "jaxcal_intrinsics_sd" in d["imu0"] else 0)
     return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
 
 
