@@ -37,6 +37,7 @@ __all__ = [
     "export_cals",
     "exported",
     "file_bias_sd",
+    "fold_arrays",
     "fold_models",
     "imu0",
     "imu_dict",
@@ -99,11 +100,10 @@ def file_bias_sd(model: CalibrationModel, sensor: str, ros: RosInput | None = No
     return sd * np.abs(ros.per_model_unit[sensor]) if ros is not None else sd
 
 
-def fold_models(model: CalibrationModel) -> list[CalibrationModel]:
-    """``model`` once per held-out fold that the fit recorded (``meta["held_out"]["fold_cals"]``,
-    ``multipos``'s determined delete-one-pose folds), each with that fold's ``A``, ``b`` for both
-    sensors (a g-sensitivity stays the whole fit's); ``[]`` when the model records fewer than two
-    folds for either sensor.
+def fold_arrays(model: CalibrationModel) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]] | None:
+    """``(A, b)`` per sensor, each ``(F, 3, 3)`` / ``(F, 3)``: the held-out folds' calibrations the fit
+    recorded (``meta["held_out"]["fold_cals"]``, ``multipos``'s determined delete-one-pose folds);
+    ``None`` when the model records fewer than two folds, or not the same number for each sensor.
 
     Args:
         model: the exported model.
@@ -111,12 +111,26 @@ def fold_models(model: CalibrationModel) -> list[CalibrationModel]:
     rec = ((model.meta or {}).get("held_out") or {}).get("fold_cals") or {}
     folds = {s: rec.get(s) for s in IMU_SENSORS}
     if any(f is None for f in folds.values()):
-        return []
+        return None
     A = {s: np.asarray(folds[s]["A"], np.float64) for s in IMU_SENSORS}
     b = {s: np.asarray(folds[s]["b"], np.float64) for s in IMU_SENSORS}
     n = {len(A[s]) for s in IMU_SENSORS} | {len(b[s]) for s in IMU_SENSORS}
     if len(n) != 1 or n.pop() < 2:
+        return None
+    return A, b
+
+
+def fold_models(model: CalibrationModel) -> list[CalibrationModel]:
+    """``model`` once per held-out fold that the fit recorded (:func:`fold_arrays`), each with that
+    fold's ``A``, ``b`` for both sensors (a g-sensitivity stays the whole fit's); ``[]`` without folds.
+
+    Args:
+        model: the exported model.
+    """
+    arrays = fold_arrays(model)
+    if arrays is None:
         return []
+    A, b = arrays
     out = []
     for k in range(len(A["acc"])):
         state = dict(model.state)
@@ -203,8 +217,14 @@ def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple
     header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
     d, ros = build(model, options.noise, options.units, options.datasheet)
     lost = not_carried(fmt, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS),
-                       intrinsics_folds=len(fold_models(model)) if "jaxcal_intrinsics_sd" in d["imu0"] else 0)
+                       intrinsics_folds=_n_folds(model) if "jaxcal_intrinsics_sd" in d["imu0"] else 0)
     return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
+
+
+def _n_folds(model: CalibrationModel) -> int:
+    """How many held-out folds :func:`intrinsics_sd` jackknifed (0 without them)."""
+    arrays = fold_arrays(model)
+    return 0 if arrays is None else len(arrays[0]["acc"])
 
 
 def ros_notes(tool: str, ros: RosInput | None, not_carried: Sequence[str]) -> list[str]:
