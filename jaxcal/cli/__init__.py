@@ -54,7 +54,7 @@ def _arguments_of(cmd: Command) -> Callable[[argparse.ArgumentParser], None]:
 
 
 NO_CACHE_ENV = "JAXCAL_NO_CACHE"
-CACHE_MIN_COMPILE_SECS = 0.5  # as the Makefile: cache every compile worth keeping ...
+CACHE_MIN_COMPILE_SECS = 0.5  # cache every compile worth keeping (the Makefile keeps all for the suite) ...
 CACHE_MIN_ENTRY_BYTES = 0  # ... whatever its size
 
 
