@@ -61,9 +61,9 @@ def _release_compiled_code():
     next call recompiles, or loads from the persistent cache.
 
     Clearing only once a worker held 30000 mappings was tried (stop 35): 2091 fewer compilations
-    (8344 against 10435), yet the suite was no faster (739 s under a per-test timing probe, against
-    705 s clearing after every module, 2 workers on the 2-core machine; the compilations took longer
-    in the larger processes), so every module clears.
+    (8344 against 10435), yet the suite was no faster (739 s, against 731 s clearing after every
+    module, both under a per-test compile probe, 2 workers on the 2-core machine), so every module
+    clears.
     """
     yield
     jax.clear_caches()
