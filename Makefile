@@ -7,12 +7,13 @@ STAMP   := $(VENV)/.installed
 LOCK    := constraints.txt
 # One worker per core, one test file per worker (module fixtures are built once; `-n 0` runs serially);
 # the 30 slowest steps are listed, since the suite is the loop every change goes through. The CPUs are the
-# limit: 3 workers on 2 cores ran the suite in 756 s (196 % CPU), 2 in 705 s (threshold 0.5 below, both).
+# limit: 3 workers on 2 cores ran the suite in 756 s (196 % CPU), 2 in 705 s (threshold 0.5 below, both; one run each).
 PYTEST_ARGS ?= -q -ra -n auto --dist loadfile --durations=30
 # JAX persistent compilation cache: compile time dominates on CPU. Every compile is kept (threshold 0): the
 # suite's modules and its two workers compile many of the same small programs (jax.clear_caches after each
 # module, tests/conftest.py), and a load from disk is cheaper than compiling again. Fresh clones of one commit,
-# one after the other on the 2-core machine: pytest 575 s at threshold 0 against 705 s at 0.5.
+# one after the other on the 2-core machine: pytest 575 s at threshold 0 against 705 s at 0.5 (one run each; runs of one
+# commit vary by up to 18 % on this machine, so this is not a measured ratio).
 export JAX_COMPILATION_CACHE_DIR := $(CURDIR)/.jax_cache
 export JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS := 0
 export JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES := 0
