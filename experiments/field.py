@@ -2,7 +2,7 @@
 joined by hand motions, without ``seq`` ids and without datasheet values, beside ``multipos`` and
 the factory / published calibrations.
 
-    python -m experiments.field [--quick]
+    python -m experiments.field [--quick] [--report-only]
 
 Writes ``results/field.{md,json}`` and ``results/figures/field_heldout.png`` (quick form:
 ``field_quick*``). Every jaxcal row is what ``jaxcal calibrate`` computes and prints (the library
@@ -10,7 +10,7 @@ calls it makes: ``methods.fit`` then ``methods.summary.describe``), held out on 
 use; the factory / published rows are read from ``results/real.json`` (written by
 ``python -m experiments.real_data``), scored there on every pose; the thesis's simulation numbers
 from ``results/online.json`` (``python -m experiments.online``). The quick form skips the variants
-(``--residuals all``, ``--kind affine``, no datasheet) and ``online-thesis``.
+(``--acc-from filter``, ``--residuals all``, ``--kind affine``, no datasheet) and ``online-thesis``.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ RECORDINGS = {  # name -> (file, the peer row of results/real.json, the issue's 
                                 "imucal Ferraris (calibration halves of the faces + all three turns, expected_angle -360; "
                                 "K_ga left out)", (0.5, None)),
 }
+PRIOR_ROW = "online --datasheet-prior"
 DATASHEET_KEYS = ("acc_lsb_per_g", "acc_bias_lsb", "gyr_lsb_per_rads", "gyr_bias_lsb")
 
 
@@ -83,8 +84,11 @@ def run(quick: bool) -> dict[str, Any]:
         rows["online --g-sensitivity"] = _run("online", rec, g_sensitivity=True)
         rows["multipos"] = _run("multipos", rec)
         rows["multipos --g-sensitivity"] = _run("multipos", rec, g_sensitivity=True)
+        if rec.acc_unit == "g" or rec.acc_lsb_per_g is not None:  # datasheet scales (or physical units) to centre a prior on
+            rows[PRIOR_ROW] = _run("online", rec, datasheet_prior=True)
         if not quick:
             print(f"[field] {name}: variants ...", flush=True)
+            rows["online --acc-from filter (the filter corrects the accelerometer too)"] = _run("online", rec, acc_from="filter")
             rows["online --residuals all (the simulation's recipe)"] = _run("online", rec, residuals="all")
             rows["online --kind affine"] = _run("online", rec, kind="affine")
             rows["online, datasheet values removed"] = _run("online", _without_datasheet(rec))
@@ -102,6 +106,17 @@ def run(quick: bool) -> dict[str, Any]:
 
 def _fmt(v: Any, f: str = ".3f") -> str:
     return "-" if v is None else format(float(v), f)
+
+
+def _against(res: dict[str, Any], row: str, base: str = "online (rests, diag)") -> str:
+    """``row`` beside the default on each recording that has both: held-out acc (mg) / gyro (deg)."""
+    out = []
+    for name, r in res["recordings"].items():
+        a, b = r["rows"].get(row, {}), r["rows"].get(base, {})
+        if a.get("acc_mg") is not None and b.get("acc_mg") is not None:
+            out.append(f"{name.split(' (')[0]} {_fmt(a['acc_mg'])} mg / {_fmt(a['gyr_deg'])} deg against "
+                       f"{_fmt(b['acc_mg'])} / {_fmt(b['gyr_deg'])}")
+    return "; ".join(out) if out else "not run (quick form)"
 
 
 def markdown(res: dict[str, Any], figure: str) -> str:
@@ -146,6 +161,13 @@ def markdown(res: dict[str, Any], figure: str) -> str:
         if peer.get("acc_mg") is not None and on.get("acc_mg") is not None:
             verdict.append(f"{'better' if on['acc_mg'] < peer['acc_mg'] else 'NOT better'} than the peer's "
                            f"{peer['acc_mg']:.3f} mg")
+        pr = rows.get(PRIOR_ROW, {})
+        if peer.get("acc_mg") is not None and pr.get("acc_mg") is not None:
+            verdict.append(f"with `--datasheet-prior` {pr['acc_mg']:.3f} mg and {pr['gyr_deg']:.3f} deg: "
+                           f"{'better' if pr['acc_mg'] < peer['acc_mg'] else 'NOT better'} than the peer's "
+                           f"{peer['acc_mg']:.3f} mg" + ("" if peer.get("gyr_deg") is None else
+                                                          f" and {'better' if pr['gyr_deg'] < peer['gyr_deg'] else 'NOT better'} "
+                                                          f"than its {peer['gyr_deg']:.3f} deg"))
         g_mg, g_deg = goal
         best = min((x for x in (on, on_g) if x.get("acc_mg") is not None), key=lambda x: x["gyr_deg"] or 1e9, default=on)
         if g_mg is not None and best.get("acc_mg") is not None:
@@ -169,12 +191,25 @@ def markdown(res: dict[str, Any], figure: str) -> str:
               "- **Initialised from the data** (`jaxcal.field.rest_init`): the accelerometer from the rests' |f| = 1 g, "
               "the gyroscope from the gravity carried between them; the datasheet is never the starting point (the "
               "'datasheet values removed' rows are identical).",
+              "- **The accelerometer from the rests** (`--acc-from rests`, default since 2026-11-28): the rests' "
+              "|f| = 1 g determine the accelerometer; the filter holds it there and corrects the gyroscope (the "
+              "directions it carries hold the gyroscope's own errors, which a filter correcting both also puts into "
+              "the accelerometer). The `--acc-from filter` row, where the filter corrects both (the default before), "
+              "held out beside the default: " + _against(res, "online --acc-from filter (the filter corrects the "
+                                                             "accelerometer too)") + ".",
+              "- **A datasheet as a prior, never as the start** (`--datasheet-prior`, where the recording has datasheet "
+              "scales or is in g and rad/s): the initial fit is a MAP fit with the datasheet scales as prior centre "
+              "(tolerances `--prior-scale`, `--prior-cross`), as `multipos --datasheet-prior`: " + _against(res, PRIOR_ROW)
+              + ".",
               "- **The motions' samples are left out of the accelerometer residuals** (`--residuals rests`, default): "
               "hand motions carry translational acceleration, a lever arm and a time offset that the model lacks; "
-              "compare the `--residuals all` row (the simulation's recipe). The carried direction at the end of a "
-              "motion is weighted by the gyroscope's own carrying error, not the accelerometer's noise.",
-              "- **Diag corrections by default**: the initial guess holds the cross-axis terms; an affine filter fits "
-              "them to the gyroscope's carrying errors (compare the `--kind affine` row).",
+              "compare the `--residuals all` row (the simulation's recipe; with the accelerometer held they act through "
+              "the gyroscope): " + _against(res, "online --residuals all (the simulation's recipe)") + ". The carried "
+              "direction at the end of a motion is weighted by the gyroscope's own carrying error, not the "
+              "accelerometer's noise.",
+              "- **Diag corrections by default**: the initial guess holds the cross-axis terms; an affine filter also "
+              "fits the gyroscope's to its carrying errors (`--kind affine`): " + _against(res, "online --kind affine")
+              + ".",
               "- **What `diagnose` finds, used**: the gyroscope's g-sensitivity (`--g-sensitivity`) takes the Xsens "
               "gyro from ~0.5 to ~0.13 deg held out; it does not help the MPU-6050 (6 usable motions).",
               "- **Refusal**: `calibrate` writes no model whose held-out figure is worse than its own starting point "
@@ -185,7 +220,7 @@ def markdown(res: dict[str, Any], figure: str) -> str:
 
 def plot(res: dict[str, Any], path: Path) -> None:
     names = list(res["recordings"])
-    keys = ["online (rests, diag)", "online --g-sensitivity", "multipos", "multipos --g-sensitivity"]
+    keys = ["online (rests, diag)", "online --g-sensitivity", PRIOR_ROW, "multipos", "multipos --g-sensitivity"]
     fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
     w = 0.8 / (len(keys) + 1)
     for i, k in enumerate(keys + ["peer"]):
@@ -207,20 +242,26 @@ def plot(res: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
-def main(quick: bool) -> None:
-    """Write ``results/field[_quick].{md,json}`` and ``results/figures/field[_quick]_heldout.png``."""
+def main(quick: bool, report_only: bool = False) -> None:
+    """Write ``results/field[_quick].{md,json}`` and ``results/figures/field[_quick]_heldout.png``
+    (``report_only``: the .md and the figure again from the JSON, nothing re-run)."""
     stem = "field_quick" if quick else "field"
-    t0 = time.perf_counter()
-    res = run(quick)
-    res["seconds"] = time.perf_counter() - t0
-    (RESULTS / "figures").mkdir(parents=True, exist_ok=True)
     fig = f"figures/{stem}_heldout.png"
+    if report_only:
+        res = json.loads((RESULTS / f"{stem}.json").read_text())
+    else:
+        t0 = time.perf_counter()
+        res = run(quick)
+        res["seconds"] = time.perf_counter() - t0
+        (RESULTS / f"{stem}.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
+    (RESULTS / "figures").mkdir(parents=True, exist_ok=True)
     plot(res, RESULTS / fig)
-    (RESULTS / f"{stem}.json").write_text(json.dumps(res, indent=1, default=float) + "\n")
     (RESULTS / f"{stem}.md").write_text(markdown(res, fig))
 
 
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true")
-    main(ap.parse_args().quick)
+    ap.add_argument("--report-only", action="store_true", help="rebuild the .md and the figure from the JSON")
+    a = ap.parse_args()
+    main(a.quick, a.report_only)

@@ -14,7 +14,9 @@ What this module does instead:
 
 1. **Initialise from the data** (:func:`rest_init`): the accelerometer from the rests (``|f| = 1 g``,
    :func:`jaxcal.multipos.fit_prepared`) and the gyroscope from the gravity it carries between
-   them; the datasheet is never the starting point (a wrong one cannot make the filter diverge).
+   them; the datasheet is never the starting point (a wrong one cannot make the filter diverge),
+   at most the prior centre of that fit (``MultiposConfig.prior``). ``online`` then holds the
+   accelerometer there (``OnlineHP.acc_prior_factor``) and the filter corrects the gyroscope.
 2. **Stream only what the model explains** (:func:`field_batch`): each sequence is one motion
    between two rests; the gyroscope is integrated through every sample of the motion, and the
    accelerometer residuals sit at the two rests (each rest's mean, weighted by its sample count:
@@ -204,8 +206,10 @@ def fit_field(batch: FieldBatch, init: FieldInit, dt: float, hp: OnlineHP, kind:
     initial calibration and its parameters are small corrections to it (its spec is the identity);
     the result is the composition of the two. ``kind="diag"`` (the default) corrects scales and
     biases and keeps the initial cross-axis terms: on the MPU-6050, whose poses never mix x and y,
-    the affine filter fitted those terms to the gyroscope's carrying errors (held out 3.6 mg
-    against 0.94 mg; ``results/field.md``).
+    an affine filter that also corrected the accelerometer fitted its cross-axis terms to the
+    gyroscope's carrying errors (held out 3.56 mg against 0.94 mg, ``results/field.md`` before
+    2026-11-28). ``hp.acc_prior_factor = HOLD`` (``online``'s default between rests) holds the
+    accelerometer at ``init`` and corrects the gyroscope alone.
 
     Args:
         batch: :func:`field_batch`.

@@ -110,6 +110,22 @@ def test_make_filter_is_static_and_cached():
 
 
 @pytest.mark.parametrize("kind", ["diag", "affine"])
+def test_acc_prior_factor_scales_only_the_accelerometer_prior(kind):
+    """``OnlineHP.acc_prior_factor`` f: the prior information of the accelerometer's entries (its
+    D_a entries and bias, the first ones of ``theta``) is divided by f^2, every other entry is as
+    without it; f = 1 is the default (the thesis's and the seq path's filter unchanged). f = 2 and
+    1/2: exact in binary floating point."""
+    filt = make_filter(kind)
+    base = np.diag(np.asarray(filt.prior_info(OnlineHP())))
+    na = {"diag": 6, "affine": 9}[kind]
+    for f in (2.0, 0.5):
+        got = np.diag(np.asarray(filt.prior_info(OnlineHP(acc_prior_factor=f))))
+        np.testing.assert_array_equal(got[:na], base[:na] / f**2)
+        np.testing.assert_array_equal(got[na:], base[na:])
+    np.testing.assert_array_equal(np.diag(np.asarray(filt.prior_info(OnlineHP(acc_prior_factor=1.0)))), base)
+
+
+@pytest.mark.parametrize("kind", ["diag", "affine"])
 def test_structured_jacobian_is_jacfwd_of_the_residuals(x64, small_d2, kind):
     """The filter's Jacobian by the chain rule through the carried gravity (accelerometer columns
     never pushed through the propagation) equals ``jax.jacfwd`` of the residual function, with and

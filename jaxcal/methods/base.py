@@ -87,6 +87,10 @@ SHARED_FLAGS: dict[str, Flag] = {
                           "the rests (4+ poses spanning 3-D), stored as state/gyr/G and applied by `jaxcal apply` "
                           "(which then needs the recording's acc)", const=True,
                           show_default="off"),
+    "datasheet_prior": Flag("--datasheet-prior", None, None, "MAP fit of the rests with the recording's datasheet "
+                            "scales (acc_lsb_per_g, gyr_lsb_per_rads) as prior centre, tolerances --prior-scale and "
+                            "--prior-cross (online: its initial calibration; never its starting point)", const=True,
+                            show_default="off"),
     "prior_scale": Flag("--prior-scale", flags.real(0.0, 10.0), None,
                         "prior std of the relative scale around the datasheet value (sensitivity tolerance)", "S"),
     "prior_cross": Flag("--prior-cross", flags.real(0.0, 10.0), None, "prior std of the cross-axis terms", "S"),

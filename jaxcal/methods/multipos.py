@@ -45,7 +45,7 @@ from jaxcal.multipos import (
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "bias_sd", "detect_options", "determined_folds", "fit", "fold_cals", "heldout", "multipos_config",
+__all__ = ["METHOD", "MultiposOptions", "bias_sd", "datasheet_prior", "detect_options", "determined_folds", "fit", "fold_cals", "heldout", "multipos_config",
            "quality"]
 
 
@@ -100,10 +100,7 @@ class MultiposOptions(NamedTuple):
                           "misalignment angles, bias) or 12 (full 3x3 and bias)", "9|12"),
         "gyro_bias": Flag("--gyro-bias", flags.choice("static", "init"), None,
                           "gyro bias from all rests (static) or the initial rest only (init, as imu_tk)", "static|init"),
-        "datasheet_prior": Flag("--datasheet-prior", None, None, "MAP fit with the recording's datasheet scales "
-                                "(acc_lsb_per_g, gyr_lsb_per_rads) as prior centre, tolerances --prior-scale and "
-                                "--prior-cross (results/real.md: MPU-6050 held out 0.79 -> 0.66 mg)", const=True,
-                                show_default="off"),
+        "datasheet_prior": SHARED_FLAGS["datasheet_prior"],
         "g_sensitivity": SHARED_FLAGS["g_sensitivity"],
         "latitude": Flag("--latitude", flags.real(-90.0, 90.0, open_low=False), None, "the rig's latitude in degrees: "
                          "with --g-sensitivity the vertical Earth rate (15.04 sin(latitude) deg/h, read at rest along "
@@ -111,6 +108,28 @@ class MultiposOptions(NamedTuple):
                          show_default="none: left in G"),
         **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window")},
     }
+
+
+def datasheet_prior(rec: Recording, prior_scale: float, prior_cross: float, method: str) -> DatasheetPrior:
+    """``--datasheet-prior``: the recording's datasheet scales (``acc_lsb_per_g``, ``gyr_lsb_per_rads``;
+    1 for a sensor already in g or rad/s) as the initial fit's prior centre, with the tolerances
+    ``prior_scale`` (relative) and ``prior_cross``; refused in one line without them.
+
+    Args:
+        rec: the recording.
+        prior_scale, prior_cross: the prior's std (the datasheet's sensitivity and cross-axis tolerances).
+        method: the method's name, for the message.
+    """
+    per = {}
+    for s, key in (("acc", "acc_lsb_per_g"), ("gyr", "gyr_lsb_per_rads")):
+        if getattr(rec, f"{s}_unit") in ("g", "rad/s"):
+            per[s] = 1.0
+            continue
+        v = getattr(rec, key)
+        if v is None:
+            raise ModelError(f"{method} --datasheet-prior needs '{key}' in the recording metadata")
+        per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
+    return DatasheetPrior(per["acc"], per["gyr"], float(prior_scale), float(prior_cross))
 
 
 def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
@@ -130,18 +149,7 @@ def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:
                          "--gyro-bias init")
     if options.latitude is not None and not options.g_sensitivity:
         raise ModelError("multipos: --latitude takes the Earth's rate out of the --g-sensitivity fit; give both or neither")
-    prior = None
-    if options.datasheet_prior:
-        per = {}
-        for s, key in (("acc", "acc_lsb_per_g"), ("gyr", "gyr_lsb_per_rads")):
-            if getattr(rec, f"{s}_unit") in ("g", "rad/s"):
-                per[s] = 1.0
-                continue
-            v = getattr(rec, key)
-            if v is None:
-                raise ModelError(f"multipos --datasheet-prior needs '{key}' in the recording metadata")
-            per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
-        prior = DatasheetPrior(per["acc"], per["gyr"], float(options.prior_scale), float(options.prior_cross))
+    prior = datasheet_prior(rec, options.prior_scale, options.prior_cross, "multipos") if options.datasheet_prior else None
     return MultiposConfig(acc_model=options.acc_model, gyro_bias=options.gyro_bias, prior=prior,
                           g_sensitivity=bool(options.g_sensitivity),
                           earth_rate_up=0.0 if options.latitude is None else EARTH_RATE * math.sin(math.radians(options.latitude)))

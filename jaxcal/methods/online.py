@@ -35,7 +35,8 @@ from jaxcal.methods.base import (
     sequences_of,
     units,
 )
-from jaxcal.online import OnlineHP, fit_online_recording
+from jaxcal.methods.multipos import datasheet_prior
+from jaxcal.online import HOLD, OnlineHP, fit_online_recording
 from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices
 from jaxcal.sensor import Diag, LinearCal
 
@@ -76,6 +77,13 @@ class OnlineOptions(NamedTuple):
             (every sample, the simulation's recipe).
         g_sensitivity: between rests, also take the gyroscope's g-sensitivity ``G`` from the rests
             (as ``multipos --g-sensitivity``) and out of the rates the filter integrates.
+        acc_from: between rests, where the accelerometer comes from: ``"rests"`` (its fit to the
+            rests' ``|f| = 1 g``, held there while the filter corrects the gyroscope; the rests
+            determine the accelerometer, and the filter's carried directions hold the gyroscope's
+            errors) or ``"filter"`` (the filter corrects both). ``results/field.md`` compares them.
+        datasheet_prior: between rests, fit the initial calibration with the recording's datasheet
+            scales as the prior centre (``prior_scale``, ``prior_cross``; as ``multipos
+            --datasheet-prior``); the datasheet is still never the starting point.
     """
 
     kind: str | None = None
@@ -91,6 +99,8 @@ class OnlineOptions(NamedTuple):
     folds: int = 10
     residuals: str = "rests"
     g_sensitivity: bool = False
+    acc_from: str = "rests"
+    datasheet_prior: bool = False
 
     FLAGS = {
         "kind": Flag("--kind", flags.choice("affine", "diag"), None, "filter model: affine (scale, cross-axis, bias) "
@@ -107,8 +117,11 @@ class OnlineOptions(NamedTuple):
         "residuals": Flag("--residuals", flags.choice("rests", "all"), None, "between rests: the accelerometer "
                           "residuals at the rests only, or at every sample (the simulation's recipe; motions carry "
                           "translational acceleration)", "rests|all"),
+        "acc_from": Flag("--acc-from", flags.choice("rests", "filter"), None, "between rests: the accelerometer as "
+                         "fitted to the rests (the filter corrects the gyroscope), or corrected by the filter too",
+                         "rests|filter"),
         **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window",
-                                        "g_sensitivity")},
+                                        "g_sensitivity", "datasheet_prior")},
     }
 
 
@@ -179,6 +192,8 @@ def _kind(options: OnlineOptions, segmented: bool) -> str:
 
 
 def _check_options(options: OnlineOptions) -> None:
+    if options.acc_from not in ("rests", "filter"):
+        raise ModelError(f"online: --acc-from must be rests or filter, got {options.acc_from!r}")
     if options.residuals not in field.RESIDUALS:
         raise ModelError(f"online: --residuals must be one of {', '.join(field.RESIDUALS)}, got {options.residuals!r}")
     if options.kind is not None and options.kind not in ("affine", "diag"):
@@ -224,7 +239,8 @@ def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
     if n_use < 2:
         raise ModelError(f"online: no 'seq' ids, and only {n_use} usable motions between {len(rests.intervals)} "
                          "rests (saturated ones are left out); record more rest-motion-rest sequences")
-    config = mp.MultiposConfig(g_sensitivity=bool(options.g_sensitivity))
+    prior = datasheet_prior(rec, options.prior_scale, options.prior_cross, "online") if options.datasheet_prior else None
+    config = mp.MultiposConfig(g_sensitivity=bool(options.g_sensitivity), prior=prior)
     try:
         batch = field.field_batch(rec.acc, rec.gyr, rests.intervals, rests.usable)
     except ValueError as e:
@@ -233,6 +249,8 @@ def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
     acc = np.asarray(rec.acc, np.float64)
     noise = [((acc[a:b] - init.acc.b) @ init.acc.A.T).std(0).mean() for a, b in rests.intervals]
     hp = _hp(options, float(np.mean(noise)))
+    if options.acc_from == "rests":
+        hp = hp._replace(acc_prior_factor=HOLD)
     return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True), init)
 
 
@@ -258,6 +276,8 @@ def _fit_field(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, 
         "kind": fs.kind,
         "residuals": options.residuals,
         "g_sensitivity": bool(options.g_sensitivity),
+        "acc_from": options.acc_from,
+        "datasheet_prior": bool(options.datasheet_prior),
         "sigma_acc": float(fs.hp.sigma_acc),
         "n_iter": int(fs.hp.n_iter),
         "dt": fs.dt,
@@ -273,8 +293,9 @@ def fit(rec: Recording, options: OnlineOptions, log: Log) -> Fitted:
     With ``seq`` ids the filter streams every sample from the datasheet values (or a guess from the
     data), as on the thesis's Dataset 2. Without them the recording is calibrated in the field
     (:func:`field_setup`, :mod:`jaxcal.field`): cut between its rests, initialised from them, and
-    streamed with the accelerometer residuals at the rests; datasheet values are not used (a
-    wrong one cannot make it diverge).
+    streamed with the accelerometer residuals at the rests, the accelerometer held at its fit to
+    the rests (``acc_from``); datasheet values are never the starting point (a wrong one cannot
+    make it diverge), only, with ``datasheet_prior``, the initial fit's prior centre.
 
     Args:
         rec: a recording with ``acc``, ``gyr`` and ``seq`` ids or rests between its motions
@@ -288,9 +309,10 @@ def fit(rec: Recording, options: OnlineOptions, log: Log) -> Fitted:
         state, meta = _fit_field(rec, options, log)
         meta = {"units": units(rec, SENSORS), **meta}
     else:
-        if options.g_sensitivity or options.residuals != "rests":
-            raise ModelError("online: --g-sensitivity and --residuals apply between rests (a recording without 'seq' "
-                             "ids); this one has seq ids")
+        if options.g_sensitivity or options.residuals != "rests" or options.acc_from != "rests" or options.datasheet_prior:
+            raise ModelError("online: --g-sensitivity, --residuals, --acc-from and --datasheet-prior apply between rests "
+                             "(a recording without 'seq' ids); this one has seq ids (its datasheet values are the "
+                             "filter's prior centre)")
         state, meta = _fit_seq(rec, options, log)
     for s, m in state.items():
         vals = m._asdict().values() if hasattr(m, "_asdict") else m.values()

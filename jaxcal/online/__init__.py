@@ -53,6 +53,7 @@ Dimension letters: ``Q`` parameters (``n_params``), ``M`` sequences, ``N`` sampl
 """
 
 from jaxcal.online.filter import (
+    HOLD,
     KINDS,
     PROPAGATE_UNROLL,
     Calib,
@@ -90,6 +91,7 @@ __all__ = [
     "PROPAGATE_UNROLL",
     "Calib",
     "Filter",
+    "HOLD",
     "NNOnlineHP",
     "NNState",
     "OnlineHP",

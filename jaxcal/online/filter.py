@@ -25,6 +25,7 @@ __all__ = [
     "PROPAGATE_UNROLL",
     "Calib",
     "Filter",
+    "HOLD",
     "OnlineHP",
     "OnlineState",
     "make_filter",
@@ -288,6 +289,10 @@ class OnlineHP(NamedTuple):
             deviation there. ``0`` disables it.
         prior_scale, prior_cross, prior_acc_bias, prior_gyr_bias: std of the initial prior around
             the spec values (relative, relative, g, rad/s).
+        acc_prior_factor: multiplies the accelerometer's prior std (its scale, cross-axis and bias
+            entries). 1: the values above. The field path (:func:`jaxcal.field.fit_field`) holds the
+            accelerometer at its fit to the rests with :data:`HOLD` (its data information is then a
+            millionth of its prior's), so that the filter corrects the gyroscope only.
     """
 
     sigma_acc: float | Float[Array, ""] = 1.8e-5
@@ -302,6 +307,11 @@ class OnlineHP(NamedTuple):
     prior_cross: float | Float[Array, ""] = 0.02
     prior_acc_bias: float | Float[Array, ""] = 0.03
     prior_gyr_bias: float | Float[Array, ""] = 0.05
+    acc_prior_factor: float | Float[Array, ""] = 1.0
+
+
+HOLD = 1e-6
+"""``OnlineHP.acc_prior_factor`` that holds the accelerometer where the filter starts."""
 
 
 class OnlineState(NamedTuple):
@@ -321,7 +331,9 @@ class OnlineState(NamedTuple):
 def _prior_info(lay: _Layout, hp: OnlineHP, dtype: Any = None) -> Float[Array, "Q Q"]:
     """``Lambda_0``: the datasheet prior (around ``theta = 0``) with the std of ``hp``."""
     dtype = dtype or jnp.result_type(float)
-    sd = _per_param(lay, hp.prior_scale, hp.prior_cross, hp.prior_acc_bias, hp.prior_gyr_bias).astype(dtype)
+    sd = _per_param(lay, hp.prior_scale, hp.prior_cross, hp.prior_acc_bias, hp.prior_gyr_bias)
+    na = len(lay.ia) + 3  # the accelerometer's entries: D_a's free entries and e_a
+    sd = jnp.concatenate([sd[:na] * hp.acc_prior_factor, sd[na:]]).astype(dtype)
     return jnp.diag(1.0 / sd**2)
 
 
