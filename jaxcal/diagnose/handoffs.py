@@ -114,12 +114,13 @@ class Relinearise(NamedTuple):
 
 class Retrim(NamedTuple):
     """A pass's answer: a clock skew was named whose stretch moves the recording's ends by
-    ``shift`` (s) on the reference's clock, more than the rows trimmed for the time offset cover:
-    those rows saw reference times the reference does not hold (the stretch reflects there: errors
-    of up to 0.13 g and 0.8 rad/s in the last 8 rows at 500 ppm over 20 min); run again without them,
-    linearised at the named skew ``skew`` (ppm; ``decision``: its decision). A skew that large leaves
-    a second-order remainder at 0 (0.04 g rms at 500 ppm over 20 min) that other effects would
-    otherwise absorb (a spurious accelerometer ``scale_nonlinearity``)."""
+    ``shift`` (s) on the reference's clock, a sample or more. Run again linearised at the named skew
+    ``skew`` (ppm; ``decision``: its decision): a skew that large leaves a second-order remainder at
+    0 (0.04 g rms at 500 ppm over 20 min) that other effects would otherwise absorb (a spurious
+    accelerometer ``scale_nonlinearity``) and that inflates the standard errors (15x at 500 ppm
+    over 5 min, 1.9 samples). Where the shift passes the rows trimmed for the time offset, those
+    rows saw reference times the reference does not hold (the stretch reflects there: errors of up
+    to 0.13 g and 0.8 rad/s in the last 8 rows at 500 ppm over 20 min); the run leaves them out."""
 
     shift: float
     skew: float = 0.0

@@ -515,7 +515,10 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
     if start.edge_shift == 0.0 and "clock_skew" in order:
         dt = float(sd.inp.dt)
         shift = abs(float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])) * 1e-6 * float(np.max(np.abs(np.asarray(sd.inp.tc))))
-        if edge_count(off.tau_lin, dt, shift, margin=1) > edge_count(off.tau_lin, dt):  # beyond the 3-row margin
+        # relinearised at the skew once it moves the ends a whole sample (linearised at 0 its second-order
+        # remainder inflated the standard errors 15x at 500 ppm over 5 minutes, 1.9 samples), and the rows past
+        # the reference trimmed where they pass the time offset's 3-row margin
+        if shift >= dt or edge_count(off.tau_lin, dt, shift, margin=1) > edge_count(off.tau_lin, dt):
             skew = float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])
             d0 = decisions["clock_skew"]
             return Retrim(shift, skew, d0 if isinstance(d0, Decision) else Decision(**d0))
@@ -540,8 +543,9 @@ def diagnose_sensor(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, 
     """Locate-name-refit for one sensor: :func:`sensor_pass` from the coarse offset; once more
     linearised at the refit time offset when one is named (linearised at 0, an offset of a sizeable
     fraction of a sample leaves a second-order remainder that other effects would otherwise absorb);
-    once more without the end rows a named clock skew moves past the reference's ends, where they
-    exceed the time offset's margin, linearised at that skew (:class:`Retrim`); once more linearised at
+    once more linearised at a named clock skew that moves the ends a sample or more, without the end
+    rows it moves past the reference's ends where they exceed the time offset's margin
+    (:class:`Retrim`); once more linearised at
     a zero skew if the skew then fails the promise (:class:`Unskew`); and once more without a time
     offset when it fails the promise there.
 
