@@ -105,7 +105,7 @@ def test_field_recovers_the_simulated_calibration_despite_hand_accelerations(han
     is pulled off by the accelerations (measured 2e-2 and more). With the accelerometer held at its
     fit to the rests (``acc_prior_factor=HOLD``, ``online``'s default between rests) the
     accelerometer is the initial guess's (measured over seeds 0-2: A within 7e-11 and b within 3e-9
-    relative; the filter's data information on it is a millionth of its prior's) and the gyroscope
+    relative; its prior information is 1e12 times the default's) and the gyroscope
     is still corrected to the truth (7e-5 here)."""
     rec = hand_session
     rests = mo.rest_sequences(rec, mo.OnlineOptions())
