@@ -41,7 +41,7 @@ from jaxcal.diagnose.handoffs import (
     Unskew,
 )
 from jaxcal.diagnose.locate import breakdown
-from jaxcal.diagnose.offset import Offset, Start, baseline_resid, coarse_offset, edge_count, edge_rows, theta_with_tau
+from jaxcal.diagnose.offset import Offset, Start, baseline_resid, coarse_offset, edge_rows, theta_with_tau
 from jaxcal.diagnose.refit import RefitResult, refit
 from jaxcal.diagnose.select import (
     Decision,
@@ -516,9 +516,9 @@ def sensor_pass(kind: str, sd: SensorData, cfg: SelectConfig, n_tests: int, star
         dt = float(sd.inp.dt)
         shift = abs(float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])) * 1e-6 * float(np.max(np.abs(np.asarray(sd.inp.tc))))
         # relinearised at the skew once it moves the ends a whole sample (linearised at 0 its second-order
-        # remainder inflated the standard errors 15x at 500 ppm over 5 minutes, 1.9 samples), and the rows past
-        # the reference trimmed where they pass the time offset's 3-row margin
-        if shift >= dt or edge_count(off.tau_lin, dt, shift, margin=1) > edge_count(off.tau_lin, dt):
+        # remainder inflated the standard errors 15x at 500 ppm over 5 minutes, 1.9 samples); the Retrim pass's
+        # edge_shift also trims the rows past the reference where they pass the time offset's 3-row margin
+        if shift >= dt:
             skew = float(final_all.theta[E.slot(sd.sensor, "clock_skew").start])
             d0 = decisions["clock_skew"]
             return Retrim(shift, skew, d0 if isinstance(d0, Decision) else Decision(**d0))
