@@ -333,8 +333,7 @@ def _prior_info(lay: _Layout, hp: OnlineHP, dtype: Any = None) -> Float[Array, "
     """``Lambda_0``: the datasheet prior (around ``theta = 0``) with the std of ``hp``."""
     dtype = dtype or jnp.result_type(float)
     sd = _per_param(lay, hp.prior_scale, hp.prior_cross, hp.prior_acc_bias, hp.prior_gyr_bias)
-    na = len(lay.ia) + 3  # the accelerometer's entries: D_a's free entries and e_a
-    sd = jnp.concatenate([sd[:na] * hp.acc_prior_factor, sd[na:]]).astype(dtype)
+    sd = sd.at[: lay.sea.stop].multiply(hp.acc_prior_factor).astype(dtype)  # the accelerometer's: D_a and e_a
     return jnp.diag(1.0 / sd**2)
 
 
