@@ -34,6 +34,7 @@ import numpy as np
 from jaxcal import flags
 from jaxcal.constants import PHYS_UNIT, SENSORS
 from jaxcal.flags import Flag
+from jaxcal.multipos import DatasheetPrior
 from jaxcal.precision import float64
 from jaxcal.recording import Recording, sequence_slices
 from jaxcal.sensor import Affine, Diag, LinearCal, spec_diag
@@ -58,6 +59,7 @@ __all__ = [
     "apply_linear_state",
     "check_linear_state",
     "datasheet_cals",
+    "datasheet_prior",
     "fit_each_labelled",
     "gsens_of",
     "holdout_mask",
@@ -202,6 +204,28 @@ def datasheet_cals(rec: Recording) -> tuple[LinearCal, LinearCal] | None:
     cals = tuple(LinearCal.from_diag(Diag(jnp.asarray(sp.s, jnp.float64), jnp.asarray(sp.b, jnp.float64)))
                  for sp in specs)
     return tuple(LinearCal(np.asarray(c.A), np.asarray(c.b)) for c in cals)
+
+
+def datasheet_prior(rec: Recording, prior_scale: float, prior_cross: float, method: str) -> DatasheetPrior:
+    """``--datasheet-prior``: the recording's datasheet scales (``acc_lsb_per_g``, ``gyr_lsb_per_rads``;
+    1 for a sensor already in g or rad/s) as the initial fit's prior centre, with the tolerances
+    ``prior_scale`` (relative) and ``prior_cross``; refused in one line without them.
+
+    Args:
+        rec: the recording.
+        prior_scale, prior_cross: the prior's std (the datasheet's sensitivity and cross-axis tolerances).
+        method: the method's name, for the message.
+    """
+    per = {}
+    for s, key in (("acc", "acc_lsb_per_g"), ("gyr", "gyr_lsb_per_rads")):
+        if getattr(rec, f"{s}_unit") in ("g", "rad/s"):
+            per[s] = 1.0
+            continue
+        v = getattr(rec, key)
+        if v is None:
+            raise ModelError(f"{method} --datasheet-prior needs '{key}' in the recording metadata")
+        per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
+    return DatasheetPrior(per["acc"], per["gyr"], float(prior_scale), float(prior_cross))
 
 
 def recording_dt(rec: Recording) -> float:

@@ -26,13 +26,13 @@ from jaxcal.methods.base import (
     ModelError,
     apply_linear_state,
     check_linear_state,
+    datasheet_prior,
     linear_state,
     require_both,
     units,
 )
 from jaxcal.multipos import (
     OBSERVABLE_TOL,
-    DatasheetPrior,
     DetectOptions,
     MultiposConfig,
     detect_and_fit,
@@ -45,7 +45,7 @@ from jaxcal.multipos import (
 from jaxcal.multipos.detect import fit_multipos_recording_gsens
 from jaxcal.recording import Recording
 
-__all__ = ["METHOD", "MultiposOptions", "bias_sd", "datasheet_prior", "detect_options", "determined_folds", "fit", "fold_cals", "heldout", "multipos_config",
+__all__ = ["METHOD", "MultiposOptions", "bias_sd", "detect_options", "determined_folds", "fit", "fold_cals", "heldout", "multipos_config",
            "quality"]
 
 
@@ -108,28 +108,6 @@ class MultiposOptions(NamedTuple):
                          show_default="none: left in G"),
         **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window")},
     }
-
-
-def datasheet_prior(rec: Recording, prior_scale: float, prior_cross: float, method: str) -> DatasheetPrior:
-    """``--datasheet-prior``: the recording's datasheet scales (``acc_lsb_per_g``, ``gyr_lsb_per_rads``;
-    1 for a sensor already in g or rad/s) as the initial fit's prior centre, with the tolerances
-    ``prior_scale`` (relative) and ``prior_cross``; refused in one line without them.
-
-    Args:
-        rec: the recording.
-        prior_scale, prior_cross: the prior's std (the datasheet's sensitivity and cross-axis tolerances).
-        method: the method's name, for the message.
-    """
-    per = {}
-    for s, key in (("acc", "acc_lsb_per_g"), ("gyr", "gyr_lsb_per_rads")):
-        if getattr(rec, f"{s}_unit") in ("g", "rad/s"):
-            per[s] = 1.0
-            continue
-        v = getattr(rec, key)
-        if v is None:
-            raise ModelError(f"{method} --datasheet-prior needs '{key}' in the recording metadata")
-        per[s] = float(1.0 / np.mean(np.asarray(v, np.float64)))
-    return DatasheetPrior(per["acc"], per["gyr"], float(prior_scale), float(prior_cross))
 
 
 def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:

@@ -26,6 +26,7 @@ from jaxcal.methods.base import (
     apply_linear_state,
     check_linear_state,
     datasheet_cals,
+    datasheet_prior,
     gsens_of,
     linear_cal_of_state,
     linear_state,
@@ -35,7 +36,6 @@ from jaxcal.methods.base import (
     sequences_of,
     units,
 )
-from jaxcal.methods.multipos import datasheet_prior
 from jaxcal.online import HOLD, OnlineHP, fit_online_recording
 from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices
 from jaxcal.sensor import Diag, LinearCal
