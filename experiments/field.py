@@ -108,6 +108,10 @@ def _fmt(v: Any, f: str = ".3f") -> str:
     return "-" if v is None else format(float(v), f)
 
 
+def _better(x: float, peer: float) -> str:
+    return "better" if x < peer else "NOT better"
+
+
 def _against(res: dict[str, Any], row: str, base: str = "online (rests, diag)") -> str:
     """``row`` beside the default on each recording that has both: held-out acc (mg) / gyro (deg)."""
     out = []
@@ -159,15 +163,13 @@ def markdown(res: dict[str, Any], figure: str) -> str:
             verdict.append(f"`online` acc {on['acc_mg']:.3f} mg is {ratio:.2f}x `multipos`'s {mp_['acc_mg']:.3f} mg "
                            f"({'within' if ratio <= 2 else 'NOT within'} 2x)")
         if peer.get("acc_mg") is not None and on.get("acc_mg") is not None:
-            verdict.append(f"{'better' if on['acc_mg'] < peer['acc_mg'] else 'NOT better'} than the peer's "
-                           f"{peer['acc_mg']:.3f} mg")
+            verdict.append(f"{_better(on['acc_mg'], peer['acc_mg'])} than the peer's {peer['acc_mg']:.3f} mg")
         pr = rows.get(PRIOR_ROW, {})
         if peer.get("acc_mg") is not None and pr.get("acc_mg") is not None:
             verdict.append(f"with `--datasheet-prior` {pr['acc_mg']:.3f} mg and {pr['gyr_deg']:.3f} deg: "
-                           f"{'better' if pr['acc_mg'] < peer['acc_mg'] else 'NOT better'} than the peer's "
-                           f"{peer['acc_mg']:.3f} mg" + ("" if peer.get("gyr_deg") is None else
-                                                          f" and {'better' if pr['gyr_deg'] < peer['gyr_deg'] else 'NOT better'} "
-                                                          f"than its {peer['gyr_deg']:.3f} deg"))
+                           f"{_better(pr['acc_mg'], peer['acc_mg'])} than the peer's {peer['acc_mg']:.3f} mg"
+                           + ("" if peer.get("gyr_deg") is None else
+                              f" and {_better(pr['gyr_deg'], peer['gyr_deg'])} than its {peer['gyr_deg']:.3f} deg"))
         g_mg, g_deg = goal
         best = min((x for x in (on, on_g) if x.get("acc_mg") is not None), key=lambda x: x["gyr_deg"] or 1e9, default=on)
         if g_mg is not None and best.get("acc_mg") is not None:
