@@ -17,6 +17,9 @@ import toy_sweep_target
 from jaxcal import cli
 from jaxcal import sweep as sw
 from jaxcal.simulate.dataset2 import Dataset2Config
+from jaxcal.sweep import plan as sw_plan
+from jaxcal.sweep import run as sw_run
+from jaxcal.sweep import spec as sw_spec
 from jaxcal.sweep import targets
 from jaxcal.sweep.targets import offline_nn
 
@@ -320,16 +323,22 @@ def test_example_config_parses():
     assert np.isclose(spec.fixed["init_epochs"], 5000)
 
 
-def test_a_new_target_needs_only_a_module_and_a_registry_line(tmp_path):
+def test_a_new_target_needs_only_a_module_and_a_registry_line(tmp_path, monkeypatch):
     """``tests/toy_sweep_target.py`` is a target (hyperparameters, batch runner, reference, report
     columns); one line registers it; then the shared spec checks, grouping, batches, report and the
-    command line serve it, and its rows are its closed form and its own unvmapped reference."""
+    command line serve it, and its rows are its closed form and its own unvmapped reference. The
+    command checks the spec once (its progress line's plan and the run take it as checked)."""
     targets.register(toy_sweep_target.TARGET)  # the one registry line
     try:
         cfg = tmp_path / "toy.json"
         cfg.write_text(json.dumps({"target": "toy-gd", "grid": {"steps": [3, 8], "lr": [0.05, 0.2, 0.45]},
                                    "seeds": [0, 1], "batch_size": 4}))
-        assert cli.main(["sweep", str(cfg), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+        checks = []
+        check = sw_spec.check_spec
+        for mod in (sw_spec, sw_plan, sw_run):  # wherever a module holds the name
+            monkeypatch.setattr(mod, "check_spec", lambda s: checks.append(s.target) or check(s), raising=False)
+        assert cli.main(["sweep", str(cfg), "--out", str(tmp_path / "out")]) == 0  # with progress lines
+        assert checks == ["toy-gd"]
         rows = json.loads((tmp_path / "out" / "sweep.json").read_text())["rows"]
         # steps is static: two groups of 6, each cut into batches of 4 and 2
         assert [r["group"] for r in rows] == ["steps=3#0"] * 4 + ["steps=3#1"] * 2 + ["steps=8#0"] * 4 + ["steps=8#1"] * 2

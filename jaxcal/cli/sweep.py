@@ -29,7 +29,7 @@ def _run_sweep(args: argparse.Namespace) -> int:
     from jaxcal import sweep as sw  # imported on use
 
     try:
-        spec = sw.load_sweep_spec(args.config)
+        spec = sw.read_sweep_spec(args.config)  # checked here, once: the run takes it as checked
     except ValueError as e:  # documented: bad input
         raise UsageError(str(e)) from None
     d = Path(args.out)
@@ -42,7 +42,7 @@ def _run_sweep(args: argparse.Namespace) -> int:
         raise UsageError(f"--out {args.out}: {base} is not writable")
     if not args.resume and (d / sw.CHECKPOINT).exists():
         raise UsageError(f"--out {args.out}: holds a checkpoint; add --resume to continue it, or choose another DIR")
-    n = sw.n_runs(spec)
+    n = sw.n_runs(spec.spec)
     log = _progress(args)
     if log is not None:
         log(f"sweep {args.config}: {n} runs in {len(sw.plan(spec))} batch(es) -> {args.out}")

@@ -17,8 +17,9 @@ One module per step, each importing only those above it:
 * :mod:`~jaxcal.sweep.targets`: :data:`TARGETS`, one module per target (``online-thesis``,
   ``offline-nn``), each bringing its batch runner, unvmapped reference, hyperparameters and report
   columns;
-* :mod:`~jaxcal.sweep.spec`: :func:`check_spec` (the only check; a run checks once), the JSON
-  form (:func:`spec_from_dict`, :func:`spec_to_dict`, :func:`load_sweep_spec`);
+* :mod:`~jaxcal.sweep.spec`: :func:`check_spec` (the only check; a run checks once: the entry points
+  take a :class:`CheckedSpec` and do not check it again), the JSON form (:func:`spec_from_dict`,
+  :func:`spec_to_dict`, :func:`load_sweep_spec`, :func:`read_sweep_spec`);
 * :mod:`~jaxcal.sweep.plan`: :func:`expand`, :func:`plan`, :class:`Batch`;
 * :mod:`~jaxcal.sweep.run`: :func:`run_sweep` (sharding over a device ``Mesh``, checkpoint and
   resume), :func:`run_one` (the reference a sweep's rows match);
@@ -35,7 +36,17 @@ from jaxcal.sweep.base import Prepared, SweepSpec, Target
 from jaxcal.sweep.plan import Batch, expand, plan
 from jaxcal.sweep.report import failed_runs, write_sweep
 from jaxcal.sweep.run import CHECKPOINT, SweepResult, run_one, run_sweep
-from jaxcal.sweep.spec import MAX_RUNS, check_spec, load_sweep_spec, n_runs, spec_from_dict, spec_to_dict
+from jaxcal.sweep.spec import (
+    MAX_RUNS,
+    CheckedSpec,
+    check_spec,
+    checked,
+    load_sweep_spec,
+    n_runs,
+    read_sweep_spec,
+    spec_from_dict,
+    spec_to_dict,
+)
 from jaxcal.sweep.targets import TARGETS
 from jaxcal.sweep.targets.offline_nn import OFFLINE_DATASET_KEY, offline_seed_keys
 from jaxcal.sweep.targets.online_thesis import weights_key
@@ -46,17 +57,20 @@ __all__ = [
     "OFFLINE_DATASET_KEY",
     "TARGETS",
     "Batch",
+    "CheckedSpec",
     "Prepared",
     "SweepResult",
     "SweepSpec",
     "Target",
     "check_spec",
+    "checked",
     "expand",
     "failed_runs",
     "load_sweep_spec",
     "n_runs",
     "offline_seed_keys",
     "plan",
+    "read_sweep_spec",
     "run_one",
     "run_sweep",
     "spec_from_dict",

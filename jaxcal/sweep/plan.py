@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from jaxcal.sweep.base import SweepSpec, Target, static_key
-from jaxcal.sweep.spec import check_spec
+from jaxcal.sweep.spec import CheckedSpec, checked
 
 __all__ = ["Batch", "batches", "configurations", "expand", "plan"]
 
@@ -57,13 +57,14 @@ def configurations(spec: SweepSpec, target: Target) -> list[dict[str, Any]]:
     return [{**p, **r, "seed": s} for p in points for r in samples for s in spec.seeds]
 
 
-def expand(spec: SweepSpec) -> list[dict[str, Any]]:
+def expand(spec: SweepSpec | CheckedSpec) -> list[dict[str, Any]]:
     """Every configuration of a sweep: ``{swept name: value, ..., "seed": s}`` (grid x random x seeds).
 
     Args:
-        spec: the sweep (checked; ``ValueError`` if malformed).
+        spec: the sweep (a plain spec is checked, ``ValueError`` if malformed; a
+            :class:`~jaxcal.sweep.spec.CheckedSpec` is not checked again).
     """
-    return configurations(spec, check_spec(spec))
+    return configurations(*checked(spec))
 
 
 def _key_label(key: tuple) -> str:
@@ -85,13 +86,14 @@ def batches(spec: SweepSpec, target: Target) -> list[Batch]:
     return out
 
 
-def plan(spec: SweepSpec) -> list[Batch]:
+def plan(spec: SweepSpec | CheckedSpec) -> list[Batch]:
     """Split the configurations into compile-compatible groups, and groups into batches.
 
     Groups follow the first appearance of their static key in :func:`expand`'s order; a group
     with more than ``spec.batch_size`` (> 0) configurations is split into batches of that size.
 
     Args:
-        spec: the sweep (checked; ``ValueError`` if malformed).
+        spec: the sweep (a plain spec is checked, ``ValueError`` if malformed; a
+            :class:`~jaxcal.sweep.spec.CheckedSpec` is not checked again).
     """
-    return batches(spec, check_spec(spec))
+    return batches(*checked(spec))

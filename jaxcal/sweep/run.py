@@ -35,7 +35,7 @@ from jax.sharding import PartitionSpec as P
 from jaxcal.recording import atomic_output
 from jaxcal.sweep.base import SweepSpec, Target, scalar
 from jaxcal.sweep.plan import Batch, batches, configurations
-from jaxcal.sweep.spec import check_spec, spec_to_dict
+from jaxcal.sweep.spec import CheckedSpec, checked, spec_to_dict
 
 __all__ = ["CHECKPOINT", "SweepResult", "run_one", "run_sweep", "write_json"]
 
@@ -60,14 +60,15 @@ class SweepResult(NamedTuple):
     timing: dict[str, Any]
 
 
-def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, Any]:
+def run_one(spec: SweepSpec | CheckedSpec, config: dict[str, Any]) -> dict[str, Any]:
     """One configuration on its own (no vmap, no sharding): the reference :func:`run_sweep` matches.
 
     Args:
-        spec: the sweep (defaults, fixed values and dataset settings).
+        spec: the sweep (defaults, fixed values and dataset settings); a plain spec is checked.
         config: one entry of :func:`~jaxcal.sweep.expand`.
     """
-    return check_spec(spec).run_one(spec, config)
+    spec, target = checked(spec)
+    return target.run_one(spec, config)
 
 
 def _gather(x: jax.Array) -> np.ndarray:
@@ -119,7 +120,7 @@ def _load_checkpoint(path: Path, spec: SweepSpec) -> dict[str, list[dict]]:
 
 
 def run_sweep(
-    spec: SweepSpec,
+    spec: SweepSpec | CheckedSpec,
     *,
     out_dir: str | os.PathLike | None = None,
     resume: bool = False,
@@ -129,7 +130,8 @@ def run_sweep(
     """Run a sweep: one vmapped, jitted call per batch, sharded over ``devices``.
 
     Args:
-        spec: the sweep (checked first; ``ValueError`` if malformed).
+        spec: the sweep (a plain spec is checked first, ``ValueError`` if malformed; a
+            :class:`~jaxcal.sweep.spec.CheckedSpec` is not checked again).
         out_dir: where ``checkpoint.json`` is rewritten after each batch (``None``: no checkpoint).
         resume: skip the batches already in ``out_dir``'s checkpoint (it must be of the same spec).
         devices: the devices of the configuration axis' mesh (default ``jax.local_devices()``;
@@ -139,7 +141,7 @@ def run_sweep(
     Returns:
         :class:`SweepResult` with rows in :func:`~jaxcal.sweep.expand`'s order.
     """
-    target = check_spec(spec)  # the one check of this run
+    spec, target = checked(spec)  # the one check of this run (none for a CheckedSpec)
     planned = batches(spec, target)
     devices = list(jax.local_devices() if devices is None else devices)
     ck_path = None if out_dir is None else Path(out_dir) / CHECKPOINT

@@ -1,8 +1,11 @@
 """A sweep spec: checked (:func:`check_spec`), read from and written to its JSON form.
 
-:func:`check_spec` is the one place a spec is checked; the public entry points (:func:`spec_from_dict`,
-:func:`jaxcal.sweep.expand`, :func:`jaxcal.sweep.plan`, :func:`jaxcal.sweep.run_one`,
-:func:`jaxcal.sweep.run_sweep`) call it once and hand its :class:`~jaxcal.sweep.base.Target` on.
+:func:`check_spec` is the one place a spec is checked. :func:`checked` wraps its result as a
+:class:`CheckedSpec`, the proof that a spec was checked: the public entry points
+(:func:`jaxcal.sweep.expand`, :func:`jaxcal.sweep.plan`, :func:`jaxcal.sweep.run_one`,
+:func:`jaxcal.sweep.run_sweep`) take a plain :class:`~jaxcal.sweep.base.SweepSpec`, which they
+check, or a :class:`CheckedSpec`, which they do not check again. :func:`read_sweep_spec` reads a
+file into one, so a CLI run checks its spec once.
 """
 
 from __future__ import annotations
@@ -11,12 +14,22 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from jaxcal.sweep.base import DATASET_PREFIX, SweepSpec, Target, dataset_settings
 from jaxcal.sweep.targets import TARGETS
 
-__all__ = ["MAX_RUNS", "check_spec", "load_sweep_spec", "n_runs", "spec_from_dict", "spec_to_dict"]
+__all__ = [
+    "MAX_RUNS",
+    "CheckedSpec",
+    "check_spec",
+    "checked",
+    "load_sweep_spec",
+    "n_runs",
+    "read_sweep_spec",
+    "spec_from_dict",
+    "spec_to_dict",
+]
 
 
 def _fail(msg: str) -> None:
@@ -148,15 +161,27 @@ def check_spec(spec: SweepSpec) -> Target:
     return t
 
 
-def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
-    """A :class:`SweepSpec` from its JSON form (see ``docs/sweep_example.json``); one-line ``ValueError``.
+class CheckedSpec(NamedTuple):
+    """A spec and the :class:`~jaxcal.sweep.base.Target` :func:`check_spec` returned for it.
 
-    Args:
-        d: ``{"target", "grid", "random": {"n", "seed", "params": {name: [lo, hi, scale]}},
-            "fixed", "seeds", "dataset": {dataset field: value}, "heatmap", "batch_size"}``; every
-            key optional (``target``: ``"online-thesis"``; ``dataset`` must be absent or ``{}`` for
-            a target without dataset settings).
+    Attributes:
+        spec: the sweep.
+        target: its target.
     """
+
+    spec: SweepSpec
+    target: Target
+
+
+def checked(spec: SweepSpec | CheckedSpec) -> CheckedSpec:
+    """``spec`` checked once: a :class:`CheckedSpec` is returned as it is, a plain spec is checked
+    (:func:`check_spec`; one-line ``ValueError`` if malformed)."""
+    return spec if isinstance(spec, CheckedSpec) else CheckedSpec(spec, check_spec(spec))
+
+
+def _parse(d: dict[str, Any]) -> SweepSpec:
+    """The :class:`SweepSpec` of a JSON form (:func:`spec_from_dict`): its structure is refused where
+    malformed; its values are left to :func:`check_spec`."""
     if not isinstance(d, dict):
         _fail("sweep spec: expected a JSON object")
     known = {"target", "grid", "random", "fixed", "seeds", "dataset", "heatmap", "batch_size"}
@@ -200,8 +225,20 @@ def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
         heatmap=tuple(heatmap),
         batch_size=d.get("batch_size", 0),
     )
-    check_spec(spec)
     return spec
+
+
+def spec_from_dict(d: dict[str, Any]) -> SweepSpec:
+    """A :class:`SweepSpec` from its JSON form (see ``docs/sweep_example.json``), checked
+    (:func:`check_spec`); one-line ``ValueError``.
+
+    Args:
+        d: ``{"target", "grid", "random": {"n", "seed", "params": {name: [lo, hi, scale]}},
+            "fixed", "seeds", "dataset": {dataset field: value}, "heatmap", "batch_size"}``; every
+            key optional (``target``: ``"online-thesis"``; ``dataset`` must be absent or ``{}`` for
+            a target without dataset settings).
+    """
+    return checked(_parse(d)).spec
 
 
 def spec_to_dict(spec: SweepSpec) -> dict[str, Any]:
@@ -220,7 +257,16 @@ def spec_to_dict(spec: SweepSpec) -> dict[str, Any]:
 
 
 def load_sweep_spec(path: str | os.PathLike) -> SweepSpec:
-    """Read a JSON sweep spec (one-line ``ValueError`` naming the file on bad input).
+    """Read a JSON sweep spec, checked (one-line ``ValueError`` naming the file on bad input).
+
+    Args:
+        path: the JSON file.
+    """
+    return read_sweep_spec(path).spec
+
+
+def read_sweep_spec(path: str | os.PathLike) -> CheckedSpec:
+    """:func:`load_sweep_spec` as a :class:`CheckedSpec`, so the run that follows does not check it again.
 
     Args:
         path: the JSON file.
@@ -234,6 +280,6 @@ def load_sweep_spec(path: str | os.PathLike) -> SweepSpec:
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not JSON ({e.msg} at line {e.lineno})") from None
     try:
-        return spec_from_dict(d)
+        return checked(_parse(d))
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
