@@ -47,6 +47,8 @@ class QualityRow(TypedDict, total=False):
         without_g_sensitivity: the same figure fitted without the gyro's g-sensitivity.
         bias_sd: the fitted biases' standard errors in the model's input units (``{"acc": [3] or
             None, "gyr": [3] or None, "how": str}``), from the held-out folds (``multipos``).
+        fold_cals: the held-out folds' calibrations (``multipos``), which the exports' standard
+            errors are built from (:func:`jaxcal.methods.multipos.fold_cals`).
         error: why the row could not be computed (the other keys absent).
         skipped: why the row was not computed.
     """
@@ -59,6 +61,7 @@ class QualityRow(TypedDict, total=False):
     not_held_out: dict
     without_g_sensitivity: Any
     bias_sd: dict
+    fold_cals: dict
     error: str
     skipped: str
 

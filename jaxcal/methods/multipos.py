@@ -16,6 +16,7 @@ import numpy as np
 
 from jaxcal import flags
 from jaxcal.constants import EARTH_RATE, SENSORS
+from jaxcal.eval.scores import QualityRow, quality_row
 from jaxcal.flags import Flag
 from jaxcal.methods.base import (
     GSENS_KEY,
@@ -197,7 +198,7 @@ def fit(rec: Recording, options: MultiposOptions, log: Log) -> Fitted:
     return Fitted(sensors, state, {"units": units(rec, sensors), "fit_seconds": elapsed, "fit_quality": q})
 
 
-def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | None = None) -> QualityRow:
     """Leave-one-pose-out quality of ``multipos`` on ``rec`` (:func:`jaxcal.multipos.leave_poses_out`:
     every fold fitted inside one compiled ``lax.map``): each pose's ``| |f| - 1 g |`` from the fit
     that left it out (RMS, mg), and each usable transition's carried-gravity angle from the fit
@@ -234,11 +235,11 @@ def heldout(rec: Recording, options: MultiposOptions, meta: Mapping[str, Any] | 
     if skipped:
         how += (f"; {' and '.join(skipped)} not held out: without one of them the others do not determine the fit "
                 "(relative singular value below OBSERVABLE_TOL), so its score would be an extrapolation")
-    return {"acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))) if ea.size else None,
-            "gyr_median_deg": float(np.degrees(np.median(eg))) if eg.size else None,
-            "how": how + ("; turns not used by the folds" if options.turns else ""),
-            "not_held_out": {"poses": np.flatnonzero(~acc_ok).tolist(), "transitions": np.flatnonzero(~gyr_ok).tolist()},
-            "bias_sd": bias_sd(ho, acc_ok, kept), "fold_cals": fold_cals(ho, acc_ok, kept)}
+    row = quality_row(ea, eg, how + ("; turns not used by the folds" if options.turns else ""))
+    row["not_held_out"] = {"poses": np.flatnonzero(~acc_ok).tolist(), "transitions": np.flatnonzero(~gyr_ok).tolist()}
+    row["bias_sd"] = bias_sd(ho, acc_ok, kept)
+    row["fold_cals"] = fold_cals(ho, acc_ok, kept)
+    return row
 
 
 def bias_sd(ho: Any, acc_ok: np.ndarray, kept: Mapping[str, Any]) -> dict[str, Any]:
@@ -319,7 +320,7 @@ def _without_g(rec: Recording, options: MultiposOptions, model: Any, log: Log) -
 
 
 def quality(rec: Recording, options: MultiposOptions, model: Any, *, held_out: bool = True,
-            log: Log | None = None) -> tuple[dict[str, Any], dict[str, Any] | None]:
+            log: Log | None = None) -> tuple[QualityRow, QualityRow | None]:
     """In-sample quality from the fit's summary (``meta["fit_quality"]``: all poses and
     transitions) and the leave-one-pose-out figure (:func:`heldout`); with ``--g-sensitivity``
     also that figure without ``G`` (``without_g_sensitivity``).
@@ -327,8 +328,8 @@ def quality(rec: Recording, options: MultiposOptions, model: Any, *, held_out: b
     The arguments and rows of a method's ``quality`` (:data:`jaxcal.methods.quality.QualityFn`).
     """
     q = model.meta.get("fit_quality", {})
-    ins = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
-           "how": "all poses and transitions"}
+    ins: QualityRow = {"acc_rms_mg": q.get("acc_rms_mg"), "gyr_median_deg": q.get("gyr_median_deg"),
+                       "how": "all poses and transitions"}
     if not held_out:
         return ins, None
     try:
