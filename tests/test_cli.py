@@ -260,7 +260,7 @@ def test_front_door_names_resolve_on_first_use():
 def test_flag_defaults_are_the_options_types_defaults(name):
     """One source of truth: ``calibrate`` without method flags gives the method's default options."""
     args = cli.build_parser().parse_args(["calibrate", "--method", name, "r.npz", "--out", "m.npz"])
-    assert cli_calibrate._method_options(args) == methods.REGISTRY[name].options()
+    assert cli_calibrate.method_options(args) == methods.REGISTRY[name].options()
 
 
 def _test_errors(sim_dir, model_path, tmp_path, capsys) -> dict[str, tuple[float, float]]:

@@ -655,8 +655,9 @@ def test_sweep_lock_and_a_sweep_whose_every_run_diverges(tmp_path, capsys):
 def test_sweep_results_published_together(tmp_path, monkeypatch):
     """A failure while the heatmap is drawn leaves the earlier sweep.json / sweep.md whole (they were
     replaced with new files and the heatmap dropped)."""
+    from matplotlib.figure import Figure
+
     from jaxcal import sweep as sw
-    from jaxcal.sweep import report
 
     spec = sw.SweepSpec(grid={"w": [0.5, 0.9], "acc_lr": [1e-3, 2e-3]})
     rows = [{"group": "g", "w": w, "acc_lr": a, "seed": 0, **{k: 1.0 for k, _ in sw.TARGETS["online-thesis"].metrics}}
@@ -669,7 +670,7 @@ def test_sweep_results_published_together(tmp_path, monkeypatch):
     def boom(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(report, "_write_heatmap", boom)
+    monkeypatch.setattr(Figure, "savefig", boom)  # interrupted while the heatmap is saved
     rows2 = [r | {"test_gyr_mrads": 2.0} for r in rows]
     with pytest.raises(KeyboardInterrupt):
         sw.write_sweep(tmp_path, res._replace(rows=rows2))

@@ -17,7 +17,7 @@ from jaxcal.recording import atomic_output, load_recording
 # The methods (jax, flax, optimistix) are imported inside the functions that use them, so that
 # registering these commands costs nothing (`jaxcal --help`, other commands).
 
-__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "not_carried_text", "rest_bias"]
+__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "method_options", "not_carried_text", "rest_bias"]
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -107,7 +107,7 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
 
 
-def _method_options(args: argparse.Namespace) -> Any:
+def method_options(args: argparse.Namespace) -> Any:
     """The options of ``args.method`` from the flags given (the others keep the options type's
     defaults). Every problem (a value that does not parse, a flag of another method) is collected
     and reported at once, naming the flags, as one usage error."""
@@ -142,7 +142,7 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if not args.out.lower().endswith(".npz"):
         raise UsageError(f"--out {args.out}: model files are .npz")
     _check_out_file(args.out, [args.recording])
-    options = _method_options(args)  # before reading data
+    options = method_options(args)  # before reading data
     rec = load_recording(args.recording)
     log = _progress(args)
     t0 = time.perf_counter()
