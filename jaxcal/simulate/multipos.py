@@ -8,7 +8,8 @@ rotations, as raw counts of an accelerometer and a gyroscope with the applied ca
 Pure: the rotations come from the PRNG ``key``, the white noise from the numpy seed
 ``noise_seed``; nothing else varies between calls. The JAX parts (random rotations, the log of
 each move) run in float32, JAX's default, whatever the caller's precision setting, so the data do
-not change with it.
+not change with it; a move's per-sample rotation ``Exp(w dt)`` (:func:`jaxcal.rotation.exp_so3`) is
+float64.
 """
 
 from __future__ import annotations
@@ -17,10 +18,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcal.rotation import log_so3, random_rotation
+from jaxcal.precision import float64
+from jaxcal.rotation import exp_so3, log_so3, random_rotation
 from jaxcal.sensor import LinearCal
 
-__all__ = ["ACC_TRUTH", "GYR_TRUTH", "exp_so3_np", "simulate_poses"]
+__all__ = ["ACC_TRUTH", "GYR_TRUTH", "simulate_poses"]
 
 #: applied accelerometer calibration ``x = A (y - b)`` (g/LSB, LSB): ``A = T diag(k)`` with ``T``
 #: unit lower-triangular (the 9-parameter model's frame)
@@ -35,14 +37,10 @@ GYR_TRUTH = LinearCal(
 )
 
 
-def exp_so3_np(v: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula in numpy float64: the rotation matrix ``Exp(v)`` of a rotation vector
-    ``v`` (3,) (first order below 1e-12 rad)."""
-    th = np.linalg.norm(v)
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    if th < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + np.sin(th) / th * k + (1 - np.cos(th)) / th**2 * (k @ k)
+@float64
+def _exp64(v: np.ndarray) -> np.ndarray:
+    """``Exp(v)`` (:func:`jaxcal.rotation.exp_so3`) of a float64 rotation vector, in float64, as numpy."""
+    return np.asarray(exp_so3(jnp.asarray(v, jnp.float64)))
 
 
 def simulate_poses(
@@ -103,7 +101,7 @@ def simulate_poses(
             with jax.enable_x64(False):
                 w = np.asarray(log_so3(jnp.asarray(rots[j].T @ rots[j + 1]))) / (n_move * dt)
             r = rots[j].copy()
-            step = exp_so3_np(w * dt)
+            step = _exp64(w * dt)
             for _ in range(n_move):
                 r = r @ step
                 f_list.append((r.T @ [0, 0, 1.0])[None])
