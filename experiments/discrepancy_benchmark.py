@@ -32,9 +32,10 @@ import numpy as np
 
 from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose import effects as E
+from jaxcal.diagnose.conceal import conceal, conceal_shift, effect_at_mds
 from jaxcal.diagnose.report import effect_estimate, named_effects
 from jaxcal.diagnose.simulate import RichConfig, simulate_batch, simulate_recording
-from jaxcal.diagnose.stress import conceal, conceal_lever_arm, conceal_shift, effect_at_mds
+from jaxcal.diagnose.stress import conceal_lever_arm
 from jaxcal.recording import Recording, load_recording
 
 RESULTS = Path(__file__).resolve().parent.parent / "results"
@@ -276,7 +277,7 @@ def real_data(quick: bool, prefix: str = "discrepancy") -> dict:
     Fixed cases (the earlier ones): lever arm r = [0.04, -0.03, 0.06] m through the pose; both IMU
     streams delayed by 8 ms. Random cases: each effect of :data:`REAL_EFFECTS` concealed at
     :data:`REAL_SIZE_X_MDS` x its minimum detectable size on this recording (from the as-recorded
-    report, along a random direction, random sign; :func:`jaxcal.diagnose.stress.effect_at_mds`), several realisations each.
+    report, along a random direction, random sign; :func:`jaxcal.diagnose.conceal.effect_at_mds`), several realisations each.
     """
     import matplotlib.pyplot as plt
 
@@ -421,7 +422,7 @@ def real_markdown(res: dict) -> str:
         L.append(f"| {c['effect']} | {c['sensor']} | {_fmt(c['truth'])} | {_fmt(c['mds'], 2)} | {rec_} | {se} | {ins} | {', '.join(c['other_effects']) or '-'} |")
     rr = res["random"]
     L += ["", f"Random realisations: each effect concealed at {rr['size_x_mds']:g}x its MDS on this recording along a random direction "
-          f"(`diagnose.stress.effect_at_mds`, as in the simulation benchmark), {rr['realisations']} realisations each:", "",
+          f"(`diagnose.conceal.effect_at_mds`, as in the simulation benchmark), {rr['realisations']} realisations each:", "",
           "| sensor | effect | named | components inside 95 % | realisations naming another effect | median |recovered - concealed| / |concealed| |",
           "|---|---|---|---|---|---|"]
     short = []
@@ -712,7 +713,7 @@ def skew_run(quick: bool) -> dict:
     estimator's stretch), diagnosed; and both BROAD trials through ``align`` beside ``qmt``'s
     ``syncOptImu`` (when the optional extra ``qmt`` is installed)."""
     from jaxcal.diagnose.align import align_recording, clock_from_qmt
-    from jaxcal.diagnose.stress import conceal_clock_skew
+    from jaxcal.diagnose.conceal import conceal_clock_skew
 
     rows = []
     for minutes, ppms in SKEW_CASES_QUICK if quick else SKEW_CASES:

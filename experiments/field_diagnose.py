@@ -17,7 +17,7 @@
    unmodified estimate (0 where the unmodified report does not name it) must lie within the
    simultaneous 95 % interval of the case's standard errors (Bonferroni over the components), with
    nothing else newly named. Then the detection rate against size in multiples of the unmodified
-   report's minimum detectable size (:func:`jaxcal.diagnose.stress.effect_at_mds`).
+   report's minimum detectable size (:func:`jaxcal.diagnose.conceal.effect_at_mds`).
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from jaxcal.diagnose import conceal as CO
 from jaxcal.diagnose import diagnose_recording
 from jaxcal.diagnose import noref as N
-from jaxcal.diagnose import stress as ST
 from jaxcal.diagnose.report import promise_violations
 from jaxcal.recording import load_recording, take_rows
 
@@ -127,10 +127,10 @@ def _find(rep: dict, sensor: str, name: str) -> dict | None:
 
 def _apply(rec, name: str, v: np.ndarray, ref: N.SelfReference):
     if name == "lever_arm":
-        return ST.conceal_lever_arm_gyro(rec, v, ref.gyr_cal, ref.acc_cal)
+        return CO.conceal_lever_arm_gyro(rec, v, ref.gyr_cal, ref.acc_cal)
     if name == "time_offset":
-        return ST.conceal_shift(rec, float(v[0]), ("acc",))
-    return ST.conceal_gsens_cal(rec, v, ref.acc_cal, ref.gyr_cal)
+        return CO.conceal_shift(rec, float(v[0]), ("acc",))
+    return CO.conceal_gsens_cal(rec, v, ref.acc_cal, ref.gyr_cal)
 
 
 def _case(base, base_forced: dict, ref: N.SelfReference, name: str, sensor: str, param: str, v: np.ndarray) -> dict:
@@ -199,7 +199,7 @@ def run_concealment(quick: bool, seed: int = 0) -> dict:
             if mds is None:
                 continue
             for m in multiples:
-                _, _, flat = ST.effect_at_mds(rng, base_rep, sensor, name, m, np.zeros((1, 3)))
+                _, _, flat = CO.effect_at_mds(rng, base_rep, sensor, name, m, np.zeros((1, 3)))
                 c = _detect(base, base_rep, ref, name, sensor, np.asarray(flat, float))
                 c["mds_multiple"] = m
                 c["size"] = float(np.linalg.norm(flat))

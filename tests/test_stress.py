@@ -15,6 +15,7 @@ from helpers import FS, make_rec, rot_of, truth_pos, truth_rate, truth_rot
 from scipy.signal import welch
 from scipy.spatial.transform import Rotation
 
+from jaxcal.diagnose import conceal as C
 from jaxcal.diagnose import stress as S
 from jaxcal.recording import Recording
 
@@ -299,13 +300,13 @@ def test_inputs_never_mutated(rec_track):
         S.decimate_reference(x, rng),
         S.add_vibration(x, rng, gyr_rms=0.01),
         S.stress(x, S.random_stress_config(rng), rng)[0],
-        S.conceal(x, "acc", "lever_arm", np.array([0.01, 0.02, 0.03])),
-        S.conceal(x, "gyr", "time_offset", np.array([0.003])),
-        S.conceal(x, "gyr", "g_sensitivity", np.full(9, 1e-3)),
-        S.conceal(x, "acc", "misalignment", np.full(6, 1e-3)),
-        S.conceal(x, "gyr", "bias_drift", np.full(3, 1e-4)),
+        C.conceal(x, "acc", "lever_arm", np.array([0.01, 0.02, 0.03])),
+        C.conceal(x, "gyr", "time_offset", np.array([0.003])),
+        C.conceal(x, "gyr", "g_sensitivity", np.full(9, 1e-3)),
+        C.conceal(x, "acc", "misalignment", np.full(6, 1e-3)),
+        C.conceal(x, "gyr", "bias_drift", np.full(3, 1e-4)),
     ]
     assert same(x, ref)
     assert all(o is not x for o in outs)
     with pytest.raises(KeyError):
-        S.conceal(x, "acc", "nonsense", np.zeros(3))
+        C.conceal(x, "acc", "nonsense", np.zeros(3))

@@ -436,7 +436,7 @@ def name_effects(kind: str, sd: SensorData, off: Offset, lin: Linearised, sel: S
                 return restart
             continue
         final_all = _joint_refit(kind, sd, lin, sel, order, base_all, huber)
-        bad = [(E.implausible(s, n, final_all.theta), n) for n in order if n not in force]
+        bad = [(E.implausibility(s, n, final_all.theta), n) for n in order if n not in force]
         bad = [b for b in bad if b[0] > 1.0]
         if bad:
             ratio, name = max(bad)
@@ -477,7 +477,7 @@ def _joint_refit(kind: str, sd: SensorData, lin: Linearised, sel: Selection, ord
     theta0 = sel.full[nb:] + lin.theta_lin
     beta0 = lin.beta + sel.full[:nb]
     for n in order:
-        if E.implausible(s, n, theta0) > 1.0:
+        if E.implausibility(s, n, theta0) > 1.0:
             sl = E.slot(s, n)
             theta0[sl.start : sl.start + sl.size] = lin.theta_lin[sl.start : sl.start + sl.size]
     return refit(kind, s, beta0, theta0, order, sd.inp, sd.y, sel.fit_rows, sel.ars, sd.block, huber=huber) if order else base_all

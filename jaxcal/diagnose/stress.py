@@ -7,7 +7,7 @@ Every function takes a :class:`~jaxcal.recording.Recording` and returns a NEW on
 ``quat_ref`` (N, 4) (Hamilton ``[w, x, y, z]``, reference body to world) on the IMU time grid, NaN
 rows marking reference gaps, optionally ``ref_valid`` (N,) bool and the original reference track
 ``gt_t`` (M,), ``gt_pos`` (M, 3), ``gt_quat`` (M, 4) at its own times (as
-:func:`jaxcal.readers.attach_pose` leaves it). Other fields are carried over unchanged.
+:func:`jaxcal.formats.pose.attach_pose` leaves it). Other fields are carried over unchanged.
 
 Truth vocabulary (CONVENTIONS.md): ``time_offset`` tau > 0 means the IMU reads x(t - tau), i.e. it
 lags the reference; ``lever_arm`` r is the IMU position relative to the reference point in the
@@ -30,8 +30,9 @@ an input whose reference frame is the IMU frame with zero offsets (tau0 = 0, R0 
 a real recording the as-recorded offsets add on top as in the table
 (tau0 + tau, Rd^T R0, Rd^T (r0 + r)).
 
-The ``conceal_*`` functions are the effect concealers of the real-data part of
-``experiments/discrepancy_benchmark.py`` (vocabulary effects added to the IMU streams).
+:func:`conceal_lever_arm` is the one effect concealer here (it moves the reference point, this
+module's geometry); the others, which add vocabulary effects to the IMU streams, are in
+:mod:`jaxcal.diagnose.conceal`.
 """
 
 from __future__ import annotations
@@ -42,17 +43,6 @@ import jax
 import numpy as np
 
 from jaxcal import rotation
-from jaxcal.diagnose.conceal import (
-    conceal,
-    conceal_clock_skew,
-    conceal_drift,
-    conceal_gsens,
-    conceal_gsens_cal,
-    conceal_lever_arm_gyro,
-    conceal_misalignment,
-    conceal_shift,
-    effect_at_mds,
-)
 from jaxcal.precision import float64
 from jaxcal.recording import Recording
 
@@ -60,15 +50,7 @@ __all__ = [
     "GT_MAX_GAP",
     "StressConfig",
     "add_vibration",
-    "conceal",
-    "conceal_clock_skew",
-    "conceal_drift",
-    "conceal_gsens",
     "conceal_lever_arm",
-    "conceal_lever_arm_gyro",
-    "conceal_gsens_cal",
-    "conceal_misalignment",
-    "conceal_shift",
     "decimate_reference",
     "move_reference_point",
     "random_stress_config",
@@ -79,7 +61,6 @@ __all__ = [
     "GOALS",
     "compose_truth",
     "alignment_errors",
-    "effect_at_mds",
     "matrix_to_quat",
     "quat_mul",
     "quat_to_matrix",
@@ -319,7 +300,7 @@ def decimate_reference(
        outside the source or in one of its gaps are lost.
     3. Random dropout runs (lengths uniform in ``dropout_len`` s, starts uniform) are removed until
        a fraction ``>= dropout_frac`` of the stamps is gone (``dropout_frac = 0``: none).
-    4. The track is attached to the IMU grid by :func:`jaxcal.readers.attach_pose` with
+    4. The track is attached to the IMU grid by :func:`jaxcal.formats.pose.attach_pose` with
        ``max_gap = 1.5 / rate_hz``: ``pos_ref``/``quat_ref`` interpolated, ``ref_valid`` False
        across every missing stamp (dropouts) and outside the track, ``gt_t``/``gt_pos``/
        ``gt_quat`` = the decimated track. With ``nan_invalid`` (default) the pose is also NaN
@@ -340,7 +321,7 @@ def decimate_reference(
         max_gap: longest source spacing interpolated across (s); None: as in :func:`shift_reference_clock`.
         nan_invalid: also set the pose to NaN where ``ref_valid`` is False.
     """
-    from jaxcal.readers import attach_pose
+    from jaxcal.formats.pose import attach_pose
 
     rate = float(rate_hz)
     sample = _sampler(rec, max_gap)

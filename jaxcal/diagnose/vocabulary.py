@@ -27,6 +27,7 @@ from scipy.interpolate import CubicSpline
 
 from jaxcal.arrays import Array
 from jaxcal.constants import G0
+from jaxcal.diagnose.resample import shift_signal, stretch_signal
 
 __all__ = [
     "Effect",
@@ -168,16 +169,12 @@ def _g_sensitivity(g, x, inp):
 
 
 def _time_offset(tau, x, inp):
-    from jaxcal.diagnose.effects import shift_signal
-
     return shift_signal(x, tau[0], inp.dt)
 
 
 def _clock_skew(s_ppm, inp):
     """The reference signals on the IMU's clock: ``f, w, dw/dt`` (and ``ww``) at ``t + 1e-6 s tc``,
     one stretch of all their channels."""
-    from jaxcal.diagnose.effects import stretch_signal
-
     parts = [inp.f, inp.w, inp.wdot] + ([] if inp.ww is None else [inp.ww.reshape(-1, 9)])
     out = stretch_signal(jnp.concatenate(parts, axis=1), s_ppm[0] * 1e-6, inp.tc, inp.dt)
     ww = None if inp.ww is None else out[:, 9:].reshape(inp.ww.shape)
