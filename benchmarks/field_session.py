@@ -3,7 +3,7 @@
 60 s on 2 cores):
 
     python -m benchmarks.field_session /tmp/sim10min.npz
-    farm-bench -n 3 --timeout 900 -- .venv/bin/jaxcal calibrate --method online /tmp/sim10min.npz --out /tmp/m.npz -q
+    .venv/bin/jaxcal calibrate --method online /tmp/sim10min.npz --out /tmp/m.npz -q   # timed whole, median of 3 runs
 
 116 poses (20 s initial rest, 3 s holds, 2 s turns): 59500 samples, 595 s.
 """
