@@ -10,6 +10,7 @@ and an exact two-sided sign test of "neither method is more often better".
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -62,6 +63,7 @@ def sign_test_p(wins: int, losses: int) -> float:
     return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n)
 
 
+@partial(jax.jit, static_argnames=("n_boot",))
 def _bootstrap(key: Array, a: Float[Array, " N"], b: Float[Array, " N"], n_boot: int) -> tuple[Array, Array]:
     idx = jax.random.randint(key, (n_boot, a.shape[0]), 0, a.shape[0])
     ra, rb = a[idx], b[idx]
@@ -86,7 +88,7 @@ def paired_comparison(a: Float[Array, " Na"], b: Float[Array, " Nb"], key: Array
         raise ValueError("paired_comparison: errors must be finite (drop unscored items first)")
     if not 0.0 < level < 1.0:
         raise ValueError(f"level must be in (0, 1), got {level}")
-    m, md = (np.asarray(x) for x in jax.jit(_bootstrap, static_argnums=3)(key, jnp.asarray(a), jnp.asarray(b), n_boot))
+    m, md = (np.asarray(x) for x in _bootstrap(key, jnp.asarray(a), jnp.asarray(b), n_boot))
     q = [(1 - level) / 2, (1 + level) / 2]
     d = a - b
     wins, losses = int(np.sum(d < 0)), int(np.sum(d > 0))

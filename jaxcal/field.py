@@ -40,6 +40,7 @@ samples per sequence, ``F`` folds.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -226,8 +227,8 @@ def fit_field(batch: FieldBatch, init: FieldInit, dt: float, hp: OnlineHP, kind:
         :class:`FieldInit`: the final calibration (``G`` carried through the gyroscope's correction).
     """
     ua, ug, w, wt = _inputs(batch, init, hp, residuals, seq_w, sigma_dir)
-    theta = _pass_jit(*(jnp.asarray(x, jnp.float64) for x in (ua, ug, batch.mask, w, wt)), jnp.asarray(dt, jnp.float64),
-                      OnlineHP(*[jnp.asarray(v) for v in hp]), kind)
+    theta = _pass(*(jnp.asarray(x, jnp.float64) for x in (ua, ug, batch.mask, w, wt)), jnp.asarray(dt, jnp.float64),
+                  OnlineHP(*[jnp.asarray(v) for v in hp]), kind)
     return _result(theta, init, kind)
 
 
@@ -244,14 +245,12 @@ def _inputs(batch: FieldBatch, init: FieldInit, hp: OnlineHP, residuals: str, se
     return ua, ug, w, wt
 
 
+@partial(jax.jit, static_argnames=("kind",))
 def _pass(ua, ug, mask, w, wt, dt, hp: OnlineHP, kind: str):
     """The filter's final ``theta`` from the identity spec (pure; ``kind`` static)."""
     state0 = make_filter(kind).init(hp, ua.dtype)
     state, _ = online_scan(state0, SequenceBatch(ua, ug, mask, w, wt), dt, hp, kind)
     return state.theta
-
-
-_pass_jit = jax.jit(_pass, static_argnames=("kind",))
 
 
 def _result(theta, init: FieldInit, kind: str) -> FieldInit:
@@ -323,7 +322,7 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
     # 30.9 s on the Xsens session, the same load), as multipos's folds (multipos.heldout.fold_batch)
     mask, dt64 = jnp.asarray(batch.mask, jnp.float64), jnp.asarray(dt, jnp.float64)
     hp64 = OnlineHP(*[jnp.asarray(v) for v in hp])
-    finals = [_result(_pass_jit(*(jnp.asarray(x, jnp.float64) for x in (ua, ug)), mask,
-                                *(jnp.asarray(x, jnp.float64) for x in (w, wt)), dt64, hp64, kind), init, kind)
+    finals = [_result(_pass(*(jnp.asarray(x, jnp.float64) for x in (ua, ug)), mask,
+                            *(jnp.asarray(x, jnp.float64) for x in (w, wt)), dt64, hp64, kind), init, kind)
               for (ua, ug, w, wt), init in zip(ins, inits)]
     return FoldFits(pf, inits, finals, np.asarray(n_seq), np.asarray(det, bool))

@@ -11,6 +11,7 @@ consistent normal equations are ``M = U A^T (A A^T)^{-1}``, which is what is imp
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import optimistix as optx
 from jaxtyping import Float
@@ -21,6 +22,7 @@ from jaxcal.sensor import Affine
 __all__ = [
     "affine_residuals",
     "fit_affine",
+    "fit_affine_jit",
     "fit_affine_closed_form",
 ]
 
@@ -73,6 +75,10 @@ def fit_affine(
     solver = optx.GaussNewton(rtol=rtol, atol=atol)
     sol = optx.least_squares(affine_residuals, solver, m0, args=(x, y, w), max_steps=8, throw=False)
     return _split(sol.value)
+
+
+#: :func:`fit_affine` compiled.
+fit_affine_jit = jax.jit(fit_affine)
 
 
 def fit_affine_closed_form(

@@ -80,6 +80,10 @@ def nn_calibrate(mlp: MLP, cal: NNCalibration, y: Float[Array, "... 3"]) -> Floa
     return mlp.apply({"params": cal.params}, normalise(y, cal.bounds))
 
 
+#: :func:`nn_calibrate` compiled, ``mlp`` static.
+nn_calibrate_jit = jax.jit(nn_calibrate, static_argnames=("mlp",))
+
+
 def weighted_mse(pred: Float[Array, "L 3"], target: Float[Array, "L 3"], w: Float[Array, " L"]) -> Float[Array, ""]:
     """Eq. 2.7 with per-sample weights (0 drops a sample); equals :func:`mse` for ``w = 1``.
 
@@ -274,6 +278,7 @@ __all__ = [
     "init_mlp",
     "mse",
     "nn_calibrate",
+    "nn_calibrate_jit",
     "ridge_output_layer",
     "row_chunked_value_and_grad",
     "weighted_mse",

@@ -170,6 +170,10 @@ def nn_calibrate_rows(
     return _fit_and_calibrate(key, mlp, bounds, (y_tr, x_tr, jnp.ones(y_tr.shape[0], y_tr.dtype)), val, y_te, spec)
 
 
+#: :func:`nn_calibrate_rows` compiled, ``mlp`` and ``spec`` static.
+nn_calibrate_rows_jit = jax.jit(nn_calibrate_rows, static_argnames=("mlp", "spec"))
+
+
 def residual_nn_calibrate_rows(
     key: jax.Array,
     mlp: MLP,
@@ -213,6 +217,7 @@ __all__ = [
     "THESIS_SIZES",
     "linear_calibrate_subsets",
     "nn_calibrate_rows",
+    "nn_calibrate_rows_jit",
     "nn_calibrate_subsets",
     "residual_nn_calibrate_rows",
 ]

@@ -458,7 +458,7 @@ def run_from_initial(data: Dataset2, hp: OnlineThesisHParams, init: InitialTrain
 
 
 #: ``run_online_thesis(data, hp)``: the whole algorithm on a simulated Dataset 2, one ``jit``.
-run_online_thesis = jax.jit(run_dataset, static_argnames="init_every")
+run_online_thesis = jax.jit(run_dataset, static_argnames=("init_every",))
 run_online_thesis.__doc__ = """Run the thesis's online algorithm on Dataset 2 (one ``jit``).
 
 Args:
@@ -472,15 +472,20 @@ Returns:
     :class:`OnlineThesisResult` with ``e_g``, ``e_a`` of shape ``(n_train + 1,)``.
 """
 
-#: ``run_sequences(acc, gyr, dt, acc_spec, gyr_spec, hp, init_every=...)``: the algorithm on
-#: equal-length raw sequences (M, N, 3) without labels (``e_g``, ``e_a`` NaN), one ``jit``; what
-#: :func:`fit_online_thesis_recording` runs once it has split the recording.
-run_sequences = jax.jit(
-    lambda acc, gyr, dt, acc_spec, gyr_spec, hp, init_every: _online_thesis(
-        acc, gyr, dt, acc_spec, gyr_spec, hp, None, init_every
-    ),
-    static_argnames="init_every",
-)
+
+@partial(jax.jit, static_argnames=("init_every",))
+def run_sequences(acc, gyr, dt, acc_spec, gyr_spec, hp, init_every):
+    """The algorithm on equal-length raw sequences without labels (``e_g``, ``e_a`` NaN), one ``jit``;
+    what :func:`fit_online_thesis_recording` runs once it has split the recording.
+
+    Args:
+        acc, gyr: (M, N, 3) raw sequences (LSB).
+        dt: sample period (s).
+        acc_spec, gyr_spec: the datasheet sensor models.
+        hp: :class:`OnlineThesisHParams` (traced).
+        init_every: (static) stride of the sequences used for the initial training.
+    """
+    return _online_thesis(acc, gyr, dt, acc_spec, gyr_spec, hp, None, init_every)
 
 
 def fit_online_thesis_recording(

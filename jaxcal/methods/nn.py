@@ -29,7 +29,7 @@ from jaxcal.methods.base import (
     units,
 )
 from jaxcal.methods.quality import early_stopping_quality
-from jaxcal.nn import MLP, NNCalibration, fit_nn, nn_calibrate
+from jaxcal.nn import MLP, NNCalibration, fit_nn, nn_calibrate_jit
 from jaxcal.normalise import Bounds, bounds_from_spec
 from jaxcal.recording import Recording
 from jaxcal.train import TrainConfig
@@ -236,7 +236,7 @@ def apply(state: Mapping[str, Any], meta: Mapping[str, Any], rec: Recording) -> 
         if y is None:
             continue
         cal = _nn_state(p)
-        out[f"{s}_cal"] = np.asarray(jax.jit(lambda c, v: nn_calibrate(mlp, c, v))(cal, jnp.asarray(y, jnp.float32)))
+        out[f"{s}_cal"] = np.asarray(nn_calibrate_jit(mlp, cal, jnp.asarray(y, jnp.float32)))
     return out
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "acc_residuals",
     "ellipsoid_init",
     "fit_acc",
+    "fit_acc_jit",
     "fit_acc_determined",
     "acc_norm_errors",
 ]
@@ -205,6 +206,10 @@ def fit_acc(
     a, b = _acc_matrix(sol.value, model)
     cost = jnp.sum(acc_residuals(sol.value, args._replace(prior=None, ridge=0.0)) ** 2)
     return LinearCal(A=a / s0[None, :], b=c0 + s0 * b), cost
+
+
+#: :func:`fit_acc` compiled, ``model`` and ``max_steps`` static (``ridge`` traced).
+fit_acc_jit = jax.jit(fit_acc, static_argnames=("model", "max_steps"))
 
 
 def fit_acc_determined(

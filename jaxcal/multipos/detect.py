@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxcal.multipos.acc import acc_norm_errors, fit_acc, fit_acc_determined
+from jaxcal.multipos.acc import acc_norm_errors, fit_acc_determined, fit_acc_jit
 from jaxcal.multipos.data import OBSERVABLE_TOL, MultiposData, VerticalTurns, prepare, turns_from_times
 from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_prepared_numpy
 from jaxcal.multipos.gyro import gyro_angle_errors, vertical_turn_errors
@@ -156,7 +156,7 @@ def _detect_fit(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, config: Multipo
         if len(det.intervals) < 9:
             continue
         pa = jnp.asarray(np.stack([np.asarray(acc, np.float64)[a:b].mean(0) for a, b in det.intervals]))
-        _, cost = jax.jit(fit_acc, static_argnums=(2, 3))(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps, None, config.acc_ridge)
+        _, cost = fit_acc_jit(pa, jnp.ones(len(pa)), config.acc_model, config.max_steps, None, config.acc_ridge)
         score = float(cost) / len(pa)
         if best is None or score < best[0]:
             best = (score, det)

@@ -189,7 +189,7 @@ def fit_prepared(
 
 
 #: :func:`fit_prepared` jitted, ``config`` static: ``fit_prepared_jit(data, config, acc_w=..., ...)``.
-fit_prepared_jit = jax.jit(fit_prepared, static_argnums=1)
+fit_prepared_jit = jax.jit(fit_prepared, static_argnames=("config",))
 
 
 def fit_multipos(

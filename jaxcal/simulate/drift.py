@@ -21,6 +21,7 @@ magnitude uniform in ``[0.5, 1] x`` the configured value. Everything is a pure f
 from __future__ import annotations
 
 import math
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -158,7 +159,7 @@ def measure(model: Diag, x: Float[Array, "L 3"], beta_noise: Float[Array, "L 3"]
     return jnp.round(model.s * x + model.b)
 
 
-@jax.jit(static_argnames=("config",))
+@partial(jax.jit, static_argnames=("config",))
 def _simulate(key: jax.Array, config: DriftConfig):
     return _simulate_drift(key, config)
 

@@ -17,7 +17,7 @@ from flax import serialization
 
 from jaxcal.recording import Recording
 from jaxcal.simulate.dataset1 import dataset1
-from jaxcal.simulate.dataset2 import Dataset2Config, dataset2
+from jaxcal.simulate.dataset2 import Dataset2Config, dataset2_jit
 from jaxcal.simulate.multipos import simulate_poses
 
 __all__ = ["dataset1_recordings", "dataset2_recordings", "multipos_recording"]
@@ -36,7 +36,7 @@ def dataset2_recordings(seed: int, config: Dataset2Config = Dataset2Config(),
         config: the dataset's configuration (static).
         labels: also store ``acc_ref``/``gyr_ref`` in ``train`` and ``val``.
     """
-    ds = jax.jit(dataset2, static_argnums=1)(jax.random.PRNGKey(seed), config)  # one compile (cached)
+    ds = dataset2_jit(jax.random.PRNGKey(seed), config)  # one compile (cached)
     fs = float(config.fs)
     spec = dict(
         fs=fs,

@@ -9,8 +9,8 @@ Seed ``s`` draws the NN's initial weights and which ``l`` training rows are used
 
 from __future__ import annotations
 
-import functools
 import math
+from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -18,11 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxcal.constants import ACC_RANGE_G
-from jaxcal.linear import fit_affine
+from jaxcal.linear import fit_affine, fit_affine_jit
 from jaxcal.metrics import euclidean_error
 from jaxcal.nn import MLP, THESIS_LEAKY_SLOPE, THESIS_OFFLINE_WIDTHS, fit_nn, nn_calibrate
 from jaxcal.normalise import bounds_from_spec
-from jaxcal.offline import NNTrainSpec, nn_calibrate_rows
+from jaxcal.offline import NNTrainSpec, nn_calibrate_rows_jit
 from jaxcal.sensor import affine_inverse
 from jaxcal.simulate.dataset1 import Dataset1Config, dataset1, nested_subset_weights
 from jaxcal.sweep.base import Prepared, SweepSpec, Target, full_config, scalar
@@ -121,6 +121,7 @@ class _Shared(NamedTuple):
     bounds: Any
 
 
+@partial(jax.jit, static_argnames=("st",))
 def _group_fn(shared: _Shared, per_config, *, st: _Static):
     """vmap of NN and linear fits + metrics over the configuration axis (rows indexed by seed)."""
     mlp = st.mlp
@@ -138,13 +139,10 @@ def _group_fn(shared: _Shared, per_config, *, st: _Static):
     return jax.vmap(one)(*per_config)
 
 
-_JIT = jax.jit(_group_fn, static_argnames=("st",))
-
-
 def _call(shared, per_config, *, st: _Static) -> dict[str, jax.Array]:
     # Full float32 matmuls, as experiments/offline.py: GPUs may default to TF32 (~1e-3 relative).
     with jax.default_matmul_precision("highest"):
-        return _JIT(shared, per_config, st=st)
+        return _group_fn(shared, per_config, st=st)
 
 
 def prepare(spec: SweepSpec, key: tuple, configs: list[dict[str, Any]]) -> Prepared:
@@ -162,7 +160,7 @@ def prepare(spec: SweepSpec, key: tuple, configs: list[dict[str, Any]]) -> Prepa
         min_rel_delta=jnp.asarray([float(f["min_rel_delta"]) for f in fulls], jnp.float32),
     )
     seed_idx = jnp.asarray([seeds.index(c["seed"]) for c in configs], dtype=jnp.int32)
-    return Prepared(functools.partial(_call, st=st), shared, (seed_idx, cfg))
+    return Prepared(partial(_call, st=st), shared, (seed_idx, cfg))
 
 
 def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, Any]:
@@ -182,9 +180,8 @@ def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, Any]:
     y_eval = jnp.concatenate([data.val.acc, data.test.acc])
     val = (data.val.acc, data.val.acc_ref)
     with jax.default_matmul_precision("highest"):
-        out, epochs, best = jax.jit(lambda k, y, x: nn_calibrate_rows(k, st.mlp, bounds, (y, x), val, y_eval, train))(
-            init_key, y, x)
-        lin = jax.jit(fit_affine)(x, y, jnp.ones(y.shape[0], y.dtype))
+        out, epochs, best = nn_calibrate_rows_jit(init_key, st.mlp, bounds, (y, x), val, y_eval, train)
+        lin = fit_affine_jit(x, y, jnp.ones(y.shape[0], y.dtype))
     n_va = data.val.acc.shape[0]
     m = _metrics(out[:n_va], out[n_va:], lin, data, epochs, best, st.max_epochs)
     return {k: scalar(np.asarray(v)) for k, v in m.items()}

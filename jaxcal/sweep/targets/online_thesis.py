@@ -8,8 +8,8 @@ hyperparameter of :class:`~jaxcal.online_thesis.OnlineThesisHParams` is traced (
 
 from __future__ import annotations
 
-import functools
 import math
+from functools import partial
 from typing import Any
 
 import jax
@@ -72,6 +72,7 @@ def run_one(spec: SweepSpec, config: dict[str, Any]) -> dict[str, float]:
     return {k: float(v) for k, v in _metrics(data, r).items()}
 
 
+@partial(jax.jit, static_argnames=("dt", "init_every"))
 def _group_fn(shared, per_config, *, dt: float, init_every: int):
     """The batch: each distinct initial training once, one after another (``lax.map``: a job's
     numbers do not depend on the batch), then the adaptive loop + metrics vmapped over the
@@ -90,7 +91,6 @@ def _group_fn(shared, per_config, *, dt: float, init_every: int):
     return jax.vmap(one)(*per_config)
 
 
-_JIT = jax.jit(_group_fn, static_argnames=("dt", "init_every"))
 _INIT_FIELDS = ("init_lr", "init_epochs", "acc_init_scale", "gyr_init_scale")  # what the initial training reads
 
 
@@ -110,7 +110,7 @@ def prepare(spec: SweepSpec, key: tuple, configs: list[dict[str, Any]]) -> Prepa
     job_hps = ot.stack_hparams([hps[first[j]] for j in range(len(jobs))])
     seed_idx = jnp.asarray([seeds.index(c["seed"]) for c in configs], dtype=jnp.int32)
     init_every = int(fulls[0]["init_every"])
-    return Prepared(functools.partial(_JIT, dt=1.0 / config.fs, init_every=init_every), (stacked, job_seed, job_hps),
+    return Prepared(partial(_group_fn, dt=1.0 / config.fs, init_every=init_every), (stacked, job_seed, job_hps),
                     (seed_idx, jnp.asarray(job_idx, dtype=jnp.int32), ot.stack_hparams(hps)))
 
 
