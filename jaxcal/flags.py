@@ -3,7 +3,8 @@
 A method's options type (a ``NamedTuple``, :mod:`jaxcal.methods`) declares the flags of its fields
 in a class attribute ``FLAGS: dict[field, Flag]``; ``jaxcal calibrate`` builds its flags from the
 registered methods' declarations (a field several types share is declared once and reused), so a
-new option needs no edit in :mod:`jaxcal.cli`. The parsers are argparse types: text in, a value
+new option needs no edit in :mod:`jaxcal.cli`. A reader (:class:`jaxcal.formats.Format`) declares
+its keyword options' flags the same way (``Format.flags``), read by ``jaxcal import``. The parsers are argparse types: text in, a value
 out, ``argparse.ArgumentTypeError`` with a one-line message on bad text. No I/O.
 """
 
@@ -16,7 +17,7 @@ from typing import Any, NamedTuple
 
 from jaxcal.constants import SENSORS
 
-__all__ = ["SEED_MAX", "Flag", "choice", "count", "degs_to_rads", "int_tuple", "real", "seed", "sensors", "turns"]
+__all__ = ["SEED_MAX", "Flag", "choice", "count", "degs_to_rads", "int_tuple", "mapping", "real", "seed", "sensors", "turns"]
 
 SEED_MAX = 2**32 - 1  # jax.random.PRNGKey takes 32-bit seeds; larger ones overflow or alias
 
@@ -33,6 +34,8 @@ class Flag(NamedTuple):
         metavar: the value's name in the help.
         const: the value of a switch (``parse`` is ``None``).
         show_default: the default as the help shows it (``None``: the option's default).
+        choices: the values the flag takes, checked by argparse and shown as ``{a,b}`` when there is no
+            ``metavar`` (``None``: any that ``parse`` takes).
     """
 
     flag: str
@@ -42,6 +45,7 @@ class Flag(NamedTuple):
     metavar: str | None = None
     const: Any = None
     show_default: Any = None
+    choices: tuple[str, ...] | None = None
 
 
 def seed(text: str) -> int:
@@ -96,6 +100,17 @@ def choice(*names: str) -> Callable[[str], str]:
         return text
 
     return parse
+
+
+def mapping(text: str) -> dict[str, str]:
+    """``NAME=VALUE[,NAME=VALUE...]`` as a dict (names and values stripped)."""
+    out = {}
+    for item in text.split(","):
+        if "=" not in item:
+            raise argparse.ArgumentTypeError(f"expected NAME=VALUE[,NAME=VALUE...], got {text!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
 
 
 def int_tuple(text: str) -> tuple[int, ...]:

@@ -5,7 +5,9 @@ registry, so a newly registered format is run through it without touching this f
 * A reader (``jaxcal.read``): a file written here from known arrays, in the format's own layout and
   units, reads back as those arrays (exactly where no unit changes, else to float64 rounding); a
   missing file and a wrong number of files are refused with one :class:`ReaderError`. Every reader
-  needs a writer in :data:`WRITERS` (a new one fails until it has one).
+  needs a writer in :data:`WRITERS` (a new one fails until it has one). Its ``jaxcal import`` flags
+  (``Format.flags``) cover its ``own_options`` and ``needs``, and an option several readers take
+  has one flag.
 * An export (``jaxcal export``): a linear model, with and without a gyro g-sensitivity, is written;
   where the format imports (``jaxcal import-model``), reading it back gives a model that calibrates
   a recording as the original does (to float64 rounding), with the g-sensitivity kept or dropped as
@@ -15,7 +17,8 @@ registry, so a newly registered format is run through it without touching this f
   ``jaxcal noise`` writes and into both YAML exports.
 
 :func:`test_a_new_format_needs_only_a_module_and_a_registry_line` registers ``tests/toy_format.py``
-(a reader and an export format in one module) and runs the same contract on it, and through the CLI.
+(a reader and an export format in one module) and runs the same contract on it, and through the CLI
+(its reader option's flag included).
 """
 
 from __future__ import annotations
@@ -191,6 +194,22 @@ def test_reader_contract(fmt, tmp_path):
     check_read(fmt, tmp_path)
 
 
+def test_reader_flags_are_declared_once():
+    """Every reader's CLI flags: an option several readers take has one flag (``SHARED_FLAGS``), no two
+    options share a flag, and the options the CLI refuses elsewhere or needs have flags."""
+    seen: dict[str, Any] = {}
+    for f in formats.REGISTRY.values():
+        declared = dict(f.flags or {})
+        assert f.read is not None or not declared, f"{f.name}: flags without a reader"
+        missing = (set(f.own_options) | set(f.needs or {})) - set(declared)
+        assert not missing, f"{f.name}: own_options / needs without a flag: {sorted(missing)}"
+        for opt, spec in declared.items():
+            assert spec.flag.startswith("--") and spec.help, (f.name, opt)
+            assert seen.setdefault(opt, spec) == spec, f"{f.name}: {opt} declared twice: use formats.base.SHARED_FLAGS"
+    by_flag = [spec.flag for spec in seen.values()]
+    assert len(by_flag) == len(set(by_flag)), by_flag
+
+
 def _linear(gsens: bool) -> CalibrationModel:
     rng = np.random.default_rng(2)
     state = {"acc": {"S": 16384.0 * (np.eye(3) + 0.02 * rng.normal(size=(3, 3))), "b": rng.normal(0, 50, 3)},
@@ -305,6 +324,14 @@ def test_a_new_format_needs_only_a_module_and_a_registry_line(tmp_path, capsys):
         out = tmp_path / "rec.npz"
         assert main(["import", "toy", str(w.files[0]), "--out", str(out)]) == 0
         np.testing.assert_array_equal(load_recording(out).gyr, GYR)
+        # its reader option, declared in FORMAT.flags alone, reaches its reader from the command line
+        assert main(["import", "toy", str(w.files[0]), "--toy-time-scale", "2", "--out", str(tmp_path / "t2.npz")]) == 0
+        np.testing.assert_allclose(load_recording(tmp_path / "t2.npz").t, 2 * load_recording(out).t, rtol=1e-15)
+        capsys.readouterr()
+        assert main(["import", "euroc", str(w.files[0]), "--toy-time-scale", "2", "--out", str(tmp_path / "e.npz")]) == 2
+        assert "format 'euroc' does not take --toy-time-scale" in capsys.readouterr().err
+        assert main(["import", "toy", str(w.files[0]), "--fs", "100", "--out", str(tmp_path / "f.npz")]) == 2
+        assert "format 'toy' does not take --fs" in capsys.readouterr().err
         from jaxcal.model_file import save_model
 
         save_model(_linear(False), tmp_path / "m.npz")

@@ -7,15 +7,18 @@ line, then per sensor one row ``sensor A00 A01 A02 A10 A11 A12 A20 A21 A22 b0 b1
 (the applied form ``x = A (y - b)``), and with a gyro g-sensitivity a row ``G g00 ... g22``
 ((rad/s)/g). Both directions of both kinds are here, with the shared
 helpers of :mod:`jaxcal.formats`; register it with one line, ``formats.register(toy_format.FORMAT)``.
+The reader's one keyword option, ``time_scale``, declares its ``jaxcal import`` flag
+(``--toy-time-scale``) in ``FORMAT.flags``: the command line needs no edit for it.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from jaxcal import flags
+from jaxcal.flags import Flag
 from jaxcal.formats.base import Exported, ExportOptions, Format, Imported
 from jaxcal.formats.linear_io import g_sensitivity, imported_model, inv, keep_gsens, linear_cals, model_units
 from jaxcal.formats.table import ReaderError, finish_recording, read_text
@@ -33,7 +36,7 @@ def recording_text(rec: Recording) -> str:
     return _REC_HEAD + "\n" + "".join(" ".join(repr(float(v)) for v in r) + "\n" for r in rows)
 
 
-def _read(files: list[Path], **options: Any) -> Recording:
+def _read(files: list[Path], time_scale: float = 1.0) -> Recording:
     path = files[0]
     lines = read_text(path).splitlines()
     if not lines or lines[0].strip() != _REC_HEAD:
@@ -44,7 +47,7 @@ def _read(files: list[Path], **options: Any) -> Recording:
         raise ReaderError(f"{path}: a row that is not 7 numbers") from None
     if x.ndim != 2 or x.shape[1] != 7:
         raise ReaderError(f"{path}: rows must be 't ax ay az gx gy gz'")
-    rec = {"t": x[:, 0], "acc": x[:, 1:4], "gyr": x[:, 4:7], "acc_unit": "g", "gyr_unit": "rad/s"}
+    rec = {"t": x[:, 0] * time_scale, "acc": x[:, 1:4], "gyr": x[:, 4:7], "acc_unit": "g", "gyr_unit": "rad/s"}
     return finish_recording(rec, str(path))
 
 
@@ -83,4 +86,6 @@ def _import(doc: list[list[str]], drop_g_sensitivity: bool = False) -> Imported:
 
 
 FORMAT = Format("toy", "a toy text format (a test plug-in): recordings in, linear models out and back", read=_read,
-                export=_export, suffix=".toy", parse=_parse, import_model=_import)
+                export=_export, suffix=".toy", parse=_parse, import_model=_import, read_help="a toy text file",
+                flags={"time_scale": Flag("--toy-time-scale", flags.real(0.0, 1e6), None,
+                                          "toy: seconds per unit of the file's t column (default 1)", "S")})

@@ -100,7 +100,8 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
             g.add_argument(spec.flag, dest=field, action="store_const", const=spec.const, default=argparse.SUPPRESS,
                            help=text)
         else:
-            g.add_argument(spec.flag, dest=field, default=argparse.SUPPRESS, metavar=spec.metavar, help=text)
+            g.add_argument(spec.flag, dest=field, default=argparse.SUPPRESS, metavar=spec.metavar, choices=spec.choices,
+                           help=text)
     p.add_argument("--force", action="store_true",
                    help="write the model even where its own held-out figure or a plausible range contradicts it "
                         "(with a warning; default: refuse, exit 2)")

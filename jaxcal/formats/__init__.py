@@ -187,8 +187,10 @@ def not_linear_message(model: CalibrationModel, format: str) -> str:
     effects = model.meta.get("effects") if model.method == "diagnosed" else None
     if isinstance(effects, dict):
         named = "; ".join(f"{s}: {', '.join(map(str, v))}" for s, v in effects.items() if v) or "none"
+        fmt = REGISTRY.get(format)
+        imu0 = fmt is not None and fmt.ros_tool is not None  # an imu0 file: no key for an offset against a reference
         msg += (f"; the effects it carries ({named}) would be lost, and "
-                + (ros_input.IMU0_LIMITS if format in ("kalibr", "openvins") else f"the {format} file has no place for them")
+                + (ros_input.IMU0_LIMITS if imu0 else f"the {format} file has no place for them")
                 + "; `jaxcal calibrate --method multipos`, `online` or `linear` fits an exportable model")
     return msg
 

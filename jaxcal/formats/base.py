@@ -4,24 +4,35 @@ A format is an outside file layout or tool that jaxcal reads or writes. Its :cla
 what it can do, each direction optional:
 
 * ``read(files, **options) -> Recording``: a recording in, e.g. EuRoC CSV or a ROS bag
-  (``jaxcal.read``, ``jaxcal import``);
+  (``jaxcal.read``, ``jaxcal import``; the keyword options' flags declared in ``flags``, as
+  :class:`jaxcal.flags.Flag` records, a flag several readers take once in :data:`SHARED_FLAGS`);
 * ``export(model, ExportOptions) -> Exported``: a linear model out as file text (``jaxcal export``);
 * ``parse(text) -> document`` and ``import_model(document, drop_g_sensitivity) -> Imported``: a
   calibration file back as a ``linear`` model (``jaxcal import-model``).
 
-Pure types, no I/O.
+Pure types and data, no I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
+from jaxcal import flags
+from jaxcal.flags import Flag
 from jaxcal.methods import CalibrationModel
 from jaxcal.recording import Recording
 
-__all__ = ["ExportOptions", "Exported", "Format", "Imported"]
+if TYPE_CHECKING:
+    from jaxcal.formats.ros_input import RosTool
+
+__all__ = ["SHARED_FLAGS", "ExportOptions", "Exported", "Format", "Imported"]
+
+SHARED_FLAGS: dict[str, Flag] = {
+    "fs": Flag("--fs", flags.real(0.0, 1e9), None, "sample rate in Hz (imucal, csv without a time column)"),
+}
+"""The ``jaxcal import`` flags of reader options that several readers take (``Format.flags``), declared once."""
 
 
 class ExportOptions(NamedTuple):
@@ -85,11 +96,23 @@ class Format:
         own_options: keyword options of ``read`` that no other reader takes (the CLI refuses them
             with any other format, and this format refuses the other readers' options).
         needs: ``option -> what it is`` for the keyword options ``read`` cannot do without.
+        flags: ``option ->`` its ``jaxcal import`` flag (:class:`jaxcal.flags.Flag`, the option's
+            name as its ``dest``, default ``None``: not given), for the keyword options of ``read``
+            the command line offers; a flag another reader shares comes from :data:`SHARED_FLAGS`.
+            ``jaxcal import`` offers every registered reader's flags and passes the ones given to
+            ``read`` (a ``TypeError`` from an option ``read`` does not take is refused naming its flag).
+        read_help: what ``jaxcal import``'s FORMAT help says of the reader after its name, e.g.
+            ``"ACC GYR files"`` (readers in a row with the same text are named together).
+        files_help: what ``jaxcal import``'s FILE help says of the reader's paths, or ``""``.
         export: ``export(model, ExportOptions) -> Exported``, or ``None``.
         suffix: the file suffix of ``export``'s output (e.g. ``".yaml"``).
         export_options: the :class:`ExportOptions` fields ``export`` uses besides the model.
         parse: ``parse(text) -> document`` of an import file, or ``None``.
         import_model: ``import_model(document, drop_g_sensitivity) -> Imported``, or ``None``.
+        ros_tool: the ROS-fed tool that reads ``export``'s ``imu0`` file
+            (:class:`~jaxcal.formats.ros_input.RosTool`: Kalibr, OpenVINS), or ``None``; its file has
+            no key for a time offset or transform against a reference
+            (:data:`~jaxcal.formats.ros_input.IMU0_LIMITS`).
     """
 
     name: str
@@ -99,8 +122,12 @@ class Format:
     paths_are_files: bool = True
     own_options: tuple[str, ...] = ()
     needs: Mapping[str, str] | None = None
+    flags: Mapping[str, Flag] | None = None
+    read_help: str = ""
+    files_help: str = ""
     export: Callable[[CalibrationModel, ExportOptions], Exported] | None = None
     suffix: str = ""
     export_options: tuple[str, ...] = ()
     parse: Callable[[str], Any] | None = None
     import_model: Callable[[Any, bool], Imported] | None = None
+    ros_tool: RosTool | None = None

@@ -129,4 +129,5 @@ def _read(files: list[Path], **options: Any) -> Recording:
     return read_broad(files[0], **options)
 
 
-FORMAT = Format("broad", "BROAD trial file (MATLAB 5 .mat) with its optical reference", read=_read)
+FORMAT = Format("broad", "BROAD trial file (MATLAB 5 .mat) with its optical reference", read=_read,
+                read_help="BROAD trial .mat")

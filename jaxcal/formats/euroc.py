@@ -84,4 +84,5 @@ def _read(files: list[Path], **options: Any) -> Recording:
     return read_euroc(files[0], files[1] if len(files) > 1 else None, **options)
 
 
-FORMAT = Format("euroc", "EuRoC / ASL CSV: imu0/data.csv [and a pose CSV]", read=_read, files=(1, 2))
+FORMAT = Format("euroc", "EuRoC / ASL CSV: imu0/data.csv [and a pose CSV]", read=_read, files=(1, 2),
+                read_help="IMU CSV [pose CSV]")

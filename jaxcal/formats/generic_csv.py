@@ -8,7 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from jaxcal.formats.base import Format
+from jaxcal import flags
+from jaxcal.flags import Flag
+from jaxcal.formats.base import SHARED_FLAGS, Format
 from jaxcal.formats.table import ReaderError, column, convert3, finish_recording, positive_rate, read_table, unit_factor, unit_from_header
 from jaxcal.recording import Recording
 
@@ -88,4 +90,9 @@ def _read(files: list[Path], **options: Any) -> Recording:
 
 
 FORMAT = Format("csv", "any CSV with a header row, given columns= (conventions name -> CSV column) and units",
-                read=_read)
+                read=_read, read_help="generic; needs --columns",
+                flags={"columns": Flag("--columns", flags.mapping, None,
+                                       "csv: conventions name=CSV column, e.g. t=time,acc_x=ax,..."),
+                       "units": Flag("--units", flags.mapping, None, "csv: quantity=unit, e.g. t=ms,acc=m/s^2,gyr=deg/s"),
+                       "fs": SHARED_FLAGS["fs"],
+                       "skip_rows": Flag("--skip-rows", flags.count(0, 10**9), None, "csv: lines to skip before the header")})

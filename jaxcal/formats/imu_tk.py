@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from jaxcal.flags import Flag
 from jaxcal.formats.base import Format
 from jaxcal.formats.table import ReaderError, as_counts, check_time, finish_recording, read_text, unit_factor
 from jaxcal.recording import Recording
@@ -66,4 +67,5 @@ def _read(files: list[Path], **options: Any) -> Recording:
 
 
 FORMAT = Format("imu_tk", "imu_tk ASCII: an accelerometer and a gyroscope 't x y z' file, raw counts", read=_read,
-                files=(2, 2))
+                files=(2, 2), read_help="ACC GYR files",
+                flags={"time_unit": Flag("--time-unit", str, None, "time unit of the files (imu_tk; default s)")})

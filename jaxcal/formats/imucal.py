@@ -27,7 +27,8 @@ from jaxtyping import Float
 from jaxcal._version import __version__
 from jaxcal.arrays import Array
 from jaxcal.constants import G0, PHYS_UNIT
-from jaxcal.formats.base import Exported, ExportOptions, Format, Imported
+from jaxcal.flags import Flag
+from jaxcal.formats.base import SHARED_FLAGS, Exported, ExportOptions, Format, Imported
 from jaxcal.formats.linear_io import (
     IMU_SENSORS,
     gsens_forward,
@@ -325,4 +326,7 @@ def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
 
 FORMAT = Format("imucal", "imucal: a recording CSV (and a sections JSON) in; its FerrarisCalibrationInfo JSON out "
                 "and back", read=_read, files=(1, 2), export=_export, suffix=".json", parse=parse_json,
-                import_model=from_imucal)
+                import_model=from_imucal, read_help="CSV [sections.json]; needs --fs",
+                flags={"fs": SHARED_FLAGS["fs"],
+                       "acc_unit": Flag("--acc-unit", str, None, "accelerometer unit where the file does not say (imucal)"),
+                       "gyr_unit": Flag("--gyr-unit", str, None, "gyroscope unit where the file does not say (imucal)")})

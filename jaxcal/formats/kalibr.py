@@ -31,7 +31,7 @@ from jaxcal.formats.linear_io import (
     rows,
 )
 from jaxcal.formats.noise_yaml import NOISE_KEYS
-from jaxcal.formats.ros_input import RosInput
+from jaxcal.formats.ros_input import RosInput, RosTool
 from jaxcal.formats.yaml_doc import (
     document_text,
     export_cals,
@@ -46,7 +46,11 @@ from jaxcal.formats.yaml_doc import (
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.sensor import LinearCal
 
-__all__ = ["FORMAT", "KALIBR_CONVENTION", "KALIBR_KEYS", "document", "from_kalibr", "to_kalibr"]
+__all__ = ["FORMAT", "KALIBR_CONVENTION", "KALIBR_KEYS", "ROS_TOOL", "document", "from_kalibr", "to_kalibr"]
+
+ROS_TOOL = RosTool("Kalibr", "the constant bias (Kalibr has no bias key: it estimates the bias itself; jaxcal_b_a / "
+                   "jaxcal_b_g are not read)", "Kalibr has no key for a bias prior")
+"""Kalibr, the tool that reads the export, and what its file lacks (:func:`~jaxcal.formats.ros_input.not_carried`)."""
 
 KALIBR_CONVENTION = """\
 Kalibr IMU intrinsics, model scale-misalignment (kalibr IccSensors.py, IccScaledMisalignedImu:
@@ -175,8 +179,9 @@ def document(d: Mapping[str, Any]) -> str:
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    return yaml_export("kalibr", "Kalibr", KALIBR_CONVENTION, _kalibr_dict, model, options, opencv=False)
+    return yaml_export(ROS_TOOL, KALIBR_CONVENTION, _kalibr_dict, model, options, opencv=False)
 
 
 FORMAT = Format("kalibr", "Kalibr scale-misalignment IMU intrinsics (YAML)", export=_export, suffix=".yaml",
-                export_options=("noise", "units", "datasheet"), parse=parse_yaml, import_model=from_kalibr)
+                export_options=("noise", "units", "datasheet"), parse=parse_yaml, import_model=from_kalibr,
+                ros_tool=ROS_TOOL)

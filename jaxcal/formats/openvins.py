@@ -29,7 +29,7 @@ from jaxcal.formats.linear_io import (
     rotation,
     rows,
 )
-from jaxcal.formats.ros_input import RosInput
+from jaxcal.formats.ros_input import RosInput, RosTool
 from jaxcal.formats.yaml_doc import (
     document_text,
     export_cals,
@@ -44,7 +44,13 @@ from jaxcal.formats.yaml_doc import (
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.sensor import LinearCal
 
-__all__ = ["FORMAT", "OPENVINS_CONVENTION", "OPENVINS_KEYS", "document", "from_openvins", "to_openvins"]
+__all__ = ["FORMAT", "OPENVINS_CONVENTION", "OPENVINS_KEYS", "ROS_TOOL", "document", "from_openvins", "to_openvins"]
+
+ROS_TOOL = RosTool("OpenVINS", "the constant bias (kalibr_imu_chain.yaml has no bias key; OpenVINS reads an initial "
+                   "bias only as init_dyn_bias_a / init_dyn_bias_g in estimator_config.yaml, for its dynamic "
+                   "initialisation: copy jaxcal_b_a / jaxcal_b_g there)",
+                   "OpenVINS has no key for it either: it inflates its own initial covariance, init_dyn_inflation_bg / _ba")
+"""OpenVINS, the tool that reads the export, and what its file lacks (:func:`~jaxcal.formats.ros_input.not_carried`)."""
 
 OPENVINS_CONVENTION = """\
 OpenVINS IMU intrinsics (kalibr_imu_chain.yaml, imu model "kalibr"). OpenVINS reads Tw, Ta, R_IMUtoGYRO,
@@ -181,8 +187,9 @@ def document(d: Mapping[str, Any]) -> str:
 
 
 def _export(model: CalibrationModel, options: ExportOptions) -> Exported:
-    return yaml_export("openvins", "OpenVINS", OPENVINS_CONVENTION, _openvins_dict, model, options, opencv=True)
+    return yaml_export(ROS_TOOL, OPENVINS_CONVENTION, _openvins_dict, model, options, opencv=True)
 
 
 FORMAT = Format("openvins", "OpenVINS kalibr_imu_chain.yaml IMU intrinsics (YAML)", export=_export, suffix=".yaml",
-                export_options=("noise", "units", "datasheet"), parse=parse_yaml, import_model=from_openvins)
+                export_options=("noise", "units", "datasheet"), parse=parse_yaml, import_model=from_openvins,
+                ros_tool=ROS_TOOL)

@@ -7,7 +7,8 @@ conversion ``c`` (ROS unit per model unit), so the file's equation ``x = A_ros (
 :func:`ros_input` chooses ``c`` per sensor: a model fitted on ``g`` -> 9.80665 (m/s^2 per g), on
 ``rad/s`` -> 1; a raw (``LSB``) model -> the datasheet scale the driver applies (``acc_lsb_per_g``,
 ``gyr_lsb_per_rads``), or, without one, the model's own mean diagonal scale (said in the file).
-:func:`not_carried` names what a linear model's file cannot give the filter. Pure functions, no I/O.
+:func:`not_carried` names what a linear model's file cannot give the filter, in the words of the tool that
+reads it (a :class:`RosTool`, declared by its format). Pure functions, no I/O.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ from jaxcal.formats.linear_io import IMU_SENSORS, model_units
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.sensor import LinearCal
 
-__all__ = ["DATASHEET_KEYS", "IMU0_LIMITS", "ROS_UNIT", "UNITS", "RosInput", "not_carried", "ros_cals", "ros_input"]
+__all__ = ["DATASHEET_KEYS", "IMU0_LIMITS", "ROS_UNIT", "UNITS", "RosInput", "RosTool", "not_carried", "ros_cals",
+           "ros_input"]
 
 ROS_UNIT = {"acc": "m/s^2", "gyr": "rad/s"}
 """The units of ``sensor_msgs/Imu`` (``linear_acceleration``, ``angular_velocity``)."""
@@ -48,6 +50,21 @@ class RosInput(NamedTuple):
     per_model_unit: dict[str, np.ndarray]
     model_unit: dict[str, str]
     how: dict[str, str]
+
+
+class RosTool(NamedTuple):
+    """A ROS-fed tool that reads an export's ``imu0`` file (``Format.ros_tool``: Kalibr, OpenVINS), and
+    what that file cannot give it, in the tool's own terms (:func:`not_carried`).
+
+    Args:
+        name: the tool, as the file's header names it (``"Kalibr"``).
+        bias: the phrase on the constant bias the file does not carry (``"the constant bias (...)"``).
+        prior: why the tool gets no prior on the bias (one clause, e.g. ``"Kalibr has no key for a bias prior"``).
+    """
+
+    name: str
+    bias: str
+    prior: str
 
 
 def _datasheet_value(datasheet: Mapping[str, Any], key: str) -> np.ndarray | None:
@@ -117,24 +134,17 @@ IMU0_LIMITS = ("imu0's time_offset and T_i_b are relative to imu0 (identity and 
 """Why a Kalibr / OpenVINS IMU file cannot hold a time offset or transform against a reference."""
 
 
-def not_carried(fmt: str, units: str, has_bias_sd: bool = False, intrinsics_folds: int = 0) -> list[str]:
-    """What a linear model's ``fmt`` file (``kalibr``, ``openvins``) does not give the filter, one phrase each.
+def not_carried(tool: RosTool, units: str, has_bias_sd: bool = False, intrinsics_folds: int = 0) -> list[str]:
+    """What a linear model's file for ``tool`` (Kalibr, OpenVINS) does not give the filter, one phrase each.
 
     Args:
-        fmt: ``kalibr`` or ``openvins``.
+        tool: the tool that reads the file (its format's ``ros_tool``).
         units: ``ros`` or ``model``.
         has_bias_sd: the file holds the biases' standard errors (``jaxcal_b_a_sd``, ``jaxcal_b_g_sd``).
         intrinsics_folds: the number of held-out folds whose jackknife gave the file's
             ``jaxcal_intrinsics_sd`` (0: the file has none).
     """
-    if fmt == "openvins":
-        bias = ("the constant bias (kalibr_imu_chain.yaml has no bias key; OpenVINS reads an initial bias only as "
-                "init_dyn_bias_a / init_dyn_bias_g in estimator_config.yaml, for its dynamic initialisation: copy "
-                "jaxcal_b_a / jaxcal_b_g there)")
-    else:
-        bias = "the constant bias (Kalibr has no bias key: it estimates the bias itself; jaxcal_b_a / jaxcal_b_g are not read)"
-    prior = ("OpenVINS has no key for it either: it inflates its own initial covariance, init_dyn_inflation_bg / _ba"
-             if fmt == "openvins" else "Kalibr has no key for a bias prior")
+    bias, prior = tool.bias, tool.prior
     if has_bias_sd:
         sd = (f"a prior on the bias ({prior}; its standard error is in jaxcal_b_a_sd / jaxcal_b_g_sd: for multipos a "
               "delete-one-pose jackknife of this session's estimate, to which the part's turn-on repeatability adds)")
@@ -143,8 +153,7 @@ def not_carried(fmt: str, units: str, has_bias_sd: bool = False, intrinsics_fold
     where = (f"their standard errors, a delete-one-pose jackknife over {intrinsics_folds} folds of the file's own numbers "
              "(a g-sensitivity held at the whole fit's value), are in jaxcal_intrinsics_sd"
              if intrinsics_folds else "this model's fit recorded no standard errors for them")
-    tool = "OpenVINS" if fmt == "openvins" else "Kalibr"
-    out = [bias, sd, f"a prior on the intrinsics ({tool} has no key for one; {where})",
+    out = [bias, sd, f"a prior on the intrinsics ({tool.name} has no key for one; {where})",
            f"time_offset and T_i_b ({IMU0_LIMITS})"]
     if units == "model":
         out.append("the ROS units (written in the model's input unit: a ROS driver's m/s^2 and rad/s need --units ros)")

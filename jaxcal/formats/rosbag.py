@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from jaxcal.constants import G0
+from jaxcal.flags import Flag
 from jaxcal.formats.base import Format
 from jaxcal.formats.pose import attach_pose, unit_quaternions
 from jaxcal.formats.table import ReaderError, finish_recording
@@ -410,4 +411,16 @@ def _read(files: list[Path], **options: Any) -> Recording:
 FORMAT = Format("rosbag", "a ROS bag (ROS1 .bag or its split parts, ROS2 directory, .mcap / .db3): an Imu topic "
                 "[and a pose topic]", read=_read, files=(1, 10**6), paths_are_files=False,
                 own_options=("imu_topic", "pose_topic", "pose_frame", "time"),
-                needs={"imu_topic": "TOPIC (a sensor_msgs/msg/Imu topic)"})
+                needs={"imu_topic": "TOPIC (a sensor_msgs/msg/Imu topic)"},
+                flags={"imu_topic": Flag("--imu-topic", str, None, "rosbag: the sensor_msgs/msg/Imu topic (required)",
+                                         "TOPIC"),
+                       "pose_topic": Flag("--pose-topic", str, None, "rosbag: reference pose topic (PoseStamped, "
+                                          "PoseWithCovarianceStamped, TransformStamped, Odometry or tf2_msgs/TFMessage)",
+                                          "TOPIC"),
+                       "pose_frame": Flag("--pose-frame", str, None,
+                                          "rosbag: child_frame_id of the body's transform (required for a tf topic)", "FRAME"),
+                       "time": Flag("--time", str, None, "rosbag: sample times from message header stamps (default) or "
+                                    "the bag's receive time", choices=TIME_SOURCES)},
+                read_help="a ROS1 .bag or the .bag parts of a split recording, a ROS2 bag directory or .mcap; "
+                "needs --imu-topic",
+                files_help="one BAG path, or the ROS1 .bag parts of one split recording")

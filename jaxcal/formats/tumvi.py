@@ -70,4 +70,4 @@ def _read(files: list[Path], **options: Any) -> Recording:
 
 
 FORMAT = Format("tumvi", "TUM-VI CSV (ROS field names, or the EuRoC layout) [and a ground-truth CSV]", read=_read,
-                files=(1, 2))
+                files=(1, 2), read_help="IMU CSV [pose CSV]")

@@ -38,4 +38,4 @@ def _read(files: list[Path], **options: Any) -> Recording:
     return read_fusion(files[0])  # takes no options (and ignores any, as it always has)
 
 
-FORMAT = Format("fusion", "x-io Fusion CSV, units in the header", read=_read)
+FORMAT = Format("fusion", "x-io Fusion CSV, units in the header", read=_read, read_help="x-io")

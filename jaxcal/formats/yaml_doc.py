@@ -26,7 +26,7 @@ from jaxcal.constants import PHYS_UNIT
 from jaxcal.formats.base import Exported, ExportOptions
 from jaxcal.formats.linear_io import IMU_SENSORS, linear_cals, matrix, model_units, physical_cals, rows
 from jaxcal.formats.noise_yaml import missing_noise_keys, opencv_body
-from jaxcal.formats.ros_input import ROS_UNIT, UNITS, RosInput, not_carried, ros_cals, ros_input
+from jaxcal.formats.ros_input import ROS_UNIT, UNITS, RosInput, RosTool, not_carried, ros_cals, ros_input
 from jaxcal.methods import CalibrationModel, ModelError
 from jaxcal.multipos.heldout import jackknife_sd
 from jaxcal.safe_yaml import YamlLimitError, load_yaml
@@ -211,14 +211,15 @@ def imu_dict(model: CalibrationModel, imu: dict[str, Any], cals: Mapping[str, Li
     return {"imu0": ordered(merge({**imu, **jaxcal_fields(model, cals, ros), **extra}, imu_fields), order)}
 
 
-def yaml_export(fmt: str, tool: str, convention: str, build: Callable[..., tuple[dict[str, Any], RosInput | None]],
+def yaml_export(tool: RosTool, convention: str, build: Callable[..., tuple[dict[str, Any], RosInput | None]],
                 model: CalibrationModel, options: ExportOptions, opencv: bool) -> Exported:
     """A YAML export's file: ``build(model, noise, units, datasheet) -> (dict, RosInput | None)``, with the
-    header lines on its input and on what ``tool`` does not get (:func:`ros_notes`, :func:`~jaxcal.formats.ros_input.not_carried`)."""
+    header lines on its input and on what ``tool`` (the format's ``ros_tool``) does not get (:func:`ros_notes`,
+    :func:`~jaxcal.formats.ros_input.not_carried`)."""
     d, ros = build(model, options.noise, options.units, options.datasheet)
-    lost = not_carried(fmt, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS),
+    lost = not_carried(tool, options.units, has_bias_sd=all(file_bias_sd(model, s) is not None for s in IMU_SENSORS),
                        intrinsics_folds=_n_folds(model) if "jaxcal_intrinsics_sd" in d["imu0"] else 0)
-    return exported(convention, d, opencv, ros_notes(tool, ros, lost), lost)
+    return exported(convention, d, opencv, ros_notes(tool.name, ros, lost), lost)
 
 
 def _n_folds(model: CalibrationModel) -> int:
