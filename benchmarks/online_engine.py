@@ -18,6 +18,11 @@ from the first rung (the claim: unchanged to float64 rounding). The load average
 4. ``+ elementwise 3x3 algebra``: ``mat3.inv3`` / ``matvec3`` in the reading model and the calibrations.
 5. ``+ elementwise loop``: the propagation's steps as multiply-adds (``PROPAGATE_ELEMENTWISE``): the
    library's default.
+
+The rungs are rebuilt by putting the filter's earlier kernels back in place of its module globals
+(``online.filter._residuals_and_jacobian``, ``_readings_of``, ``_calibrate_acc``, ``_calibrate_gyr``,
+``propagate_specific_force``, ``PROPAGATE_ELEMENTWISE``), which its ``jit`` reads at trace time. This
+ablation is about the filter's internals by purpose, so it is the one script that uses private names.
 """
 
 from __future__ import annotations

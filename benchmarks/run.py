@@ -143,11 +143,11 @@ def _step_fn(acc_spec: Diag, gyr_spec: Diag):
         opt_g, opt_a = optax.adam(hp.gyr_lr), optax.adam(hp.acc_lr)
         a_c = jax.lax.stop_gradient(cal_a(acc_p, a_raw))
         g_loss_fn = lambda p: ot.gyro_loss(cal_g(p, g_raw), a_c, dt)  # noqa: E731
-        gyr_p, s_g, _ = ot._adam_steps(g_loss_fn, gyr_p, s_g, opt_g, hp.gyr_steps)
+        gyr_p, s_g, _ = ot.adam_steps(g_loss_fn, gyr_p, s_g, opt_g, hp.gyr_steps)
         phi_c = jax.lax.stop_gradient(cal_g(gyr_p, g_raw))
         a_c1 = jax.lax.stop_gradient(cal_a(acc_p, a_raw[0]))
         a_loss_fn = lambda p: ot.acc_loss(a_c1, cal_a(p, a_raw[-1]), phi_c, dt, hp.w)  # noqa: E731
-        acc_p, s_a, _ = ot._adam_steps(a_loss_fn, acc_p, s_a, opt_a, hp.acc_steps)
+        acc_p, s_a, _ = ot.adam_steps(a_loss_fn, acc_p, s_a, opt_a, hp.acc_steps)
         return acc_p, gyr_p, s_a, s_g
 
     return step
@@ -196,7 +196,7 @@ def scan_vs_loop(reps: int) -> dict:
     return {
         "dataset": f"Dataset 2 (default config): {m} sequences of {acc.shape[1]} samples, float32",
         "what": "adaptive loop only (init_epochs = 0); scan: jaxcal.online_thesis.run_sequences; "
-                "loop: Python for over sequences of one jitted step (same calibrate/loss/_adam_steps functions)",
+                "loop: Python for over sequences of one jitted step (same calibrate/loss/adam_steps functions)",
         "scan": {"compile_s": c_scan, "run_s": t_scan, "run_s_all": all_scan},
         "loop": {"compile_s": c_loop, "run_s": t_loop, "run_s_all": all_loop, "per_step_us": t_loop / m * 1e6},
         "value": t_loop / t_scan,

@@ -70,6 +70,7 @@ __all__ = [
     "OnlineThesisResult",
     "acc_bounds",
     "acc_loss",
+    "adam_steps",
     "calibrate_acc",
     "calibrate_gyr",
     "default_hparams",
@@ -283,8 +284,20 @@ def acc_loss(
 # ----------------------------------------------------------------------------- the algorithm
 
 
-def _adam_steps(loss_fn, params, opt_state, opt, n_steps):
-    """``n_steps`` (may be traced) Adam steps on ``loss_fn(params)``; returns params, state, loss."""
+def adam_steps(loss_fn, params, opt_state, opt, n_steps):
+    """``n_steps`` (may be traced) steps of the optax optimiser ``opt`` on ``loss_fn(params)`` in one
+    ``fori_loop``: the thesis's per-sequence network update (eq. 4.10 / 4.13).
+
+    Args:
+        loss_fn: ``params -> scalar`` loss.
+        params: the network's parameters (traced).
+        opt_state: ``opt``'s state for ``params``.
+        opt: an ``optax.GradientTransformation`` (Adam in the thesis).
+        n_steps: number of steps (may be traced).
+
+    Returns:
+        ``(params, opt_state, loss_fn(params))`` after the steps.
+    """
 
     def body(_, carry):
         p, s = carry
@@ -334,7 +347,7 @@ def _initial_training(
         target = spec_convert(raw, spec)
         p0 = init_params(key, scale)
         loss_fn = lambda p: mse(target, cal(p, raw))  # noqa: E731
-        p, _, loss = _adam_steps(loss_fn, p0, init_opt.init(p0), init_opt, hp.init_epochs)
+        p, _, loss = adam_steps(loss_fn, p0, init_opt.init(p0), init_opt, hp.init_epochs)
         return p, loss
 
     acc_p0, loss_a = init_train(k_a, acc[::init_every].reshape(-1, 3), partial(calibrate_acc, spec=acc_spec), acc_spec,
@@ -374,12 +387,12 @@ def _adaptive(
         # (a) gyroscope update, eq. 4.9-4.10: NN_a fixed.
         a_c = jax.lax.stop_gradient(cal_a(acc_p, a_raw))
         g_loss_fn = lambda p: gyro_loss(cal_g(p, g_raw), a_c, dt)  # noqa: E731
-        gyr_p, s_g, l_g = _adam_steps(g_loss_fn, gyr_p, s_g, opt_g, hp.gyr_steps)
+        gyr_p, s_g, l_g = adam_steps(g_loss_fn, gyr_p, s_g, opt_g, hp.gyr_steps)
         # (b) accelerometer update, eq. 4.11-4.13: NN_phi fixed, a_phi,N a fixed target.
         phi_c = jax.lax.stop_gradient(cal_g(gyr_p, g_raw))
         a_c1 = jax.lax.stop_gradient(cal_a(acc_p, a_raw[0]))
         a_loss_fn = lambda p: acc_loss(a_c1, cal_a(p, a_raw[-1]), phi_c, dt, hp.w)  # noqa: E731
-        acc_p, s_a, l_a = _adam_steps(a_loss_fn, acc_p, s_a, opt_a, hp.acc_steps)
+        acc_p, s_a, l_a = adam_steps(a_loss_fn, acc_p, s_a, opt_a, hp.acc_steps)
         # (c) validation errors, eq. 4.14.
         e_g, e_a = evaluate(acc_p, gyr_p)
         return (acc_p, gyr_p, s_a, s_g), (l_g, l_a, e_g, e_a)

@@ -22,6 +22,17 @@ POS_F = _rs.uniform(0.2, 1.0, (3, 3))
 POS_C = _rs.uniform(0, 2 * np.pi, (3, 3))
 
 
+def exp_so3_np(v: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula in plain numpy float64, kept in the tests on purpose: they build poses and
+    turns with this second implementation, independent of the library's :func:`jaxcal.rotation.exp_so3`."""
+    v = np.asarray(v, np.float64)
+    th = np.linalg.norm(v)
+    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    if th < 1e-12:
+        return np.eye(3) + k
+    return np.eye(3) + np.sin(th) / th * k + (1 - np.cos(th)) / th**2 * (k @ k)
+
+
 def _sines(t, A, F, C, d=0):
     """d-th derivative of sum_h A[c, h] sin(2 pi F[c, h] t + C[c, h]) per component c: (N, 3)."""
     w = 2 * np.pi * F

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import exp_so3_np
 from scipy.spatial.transform import Rotation
 
 from jaxcal import multipos as mp
@@ -34,7 +35,7 @@ from jaxcal.eval.heldout import fair_data, fair_multipos, fixed_errors, online_f
 from jaxcal.eval.scores import fair_row, paired_with_peer, score_cal, score_fixed, score_heldout, score_insample, summarise
 from jaxcal.recording import load_recording
 from jaxcal.sensor import Diag, LinearCal
-from jaxcal.simulate.multipos import ACC_TRUTH, GYR_TRUTH, exp_so3_np, simulate_poses
+from jaxcal.simulate.multipos import ACC_TRUTH, GYR_TRUTH, simulate_poses
 
 DATA = Path(__file__).resolve().parent.parent / "data"
 FS = 100.0

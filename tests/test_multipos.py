@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import exp_so3_np as _exp_np
 
 from jaxcal import multipos as mp
 from jaxcal.multipos.acc import AccArgs, acc_residuals
@@ -28,16 +29,6 @@ DATA = Path(__file__).resolve().parent.parent / "data"
 # gyro's A is a full matrix.
 A_ACC, B_ACC = ACC_TRUTH
 A_GYR, B_GYR = GYR_TRUTH
-
-
-def _exp_np(v: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula in plain numpy float64, kept here on purpose: the tests build their poses
-    with a second implementation, independent of the simulator's :func:`jaxcal.rotation.exp_so3`."""
-    th = np.linalg.norm(v)
-    k = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    if th < 1e-12:
-        return np.eye(3) + k
-    return np.eye(3) + np.sin(th) / th * k + (1 - np.cos(th)) / th**2 * (k @ k)
 simulate = simulate_poses
 
 

@@ -130,11 +130,9 @@ def test_structured_jacobian_is_jacfwd_of_the_residuals(x64, small_d2, kind):
     """The filter's Jacobian by the chain rule through the carried gravity (accelerometer columns
     never pushed through the propagation) equals ``jax.jacfwd`` of the residual function, with and
     without the field's along/across weights. Deviation measured: 2.2e-16 (entries up to ~1)."""
-    from jaxcal.online.filter import _layout, _residuals_and_jacobian, _sequence_residuals
-
     d = small_d2
-    lay = _layout(kind)
-    p = lay.n
+    filt = make_filter(kind)
+    p = filt.n_params
     s = jnp.asarray(d.acc_spec.s, jnp.float64), jnp.asarray(d.gyr_spec.s, jnp.float64)
     ua = (jnp.asarray(d.train.acc[3], jnp.float64) - d.acc_spec.b) / s[0]
     ug = (jnp.asarray(d.train.gyr[3], jnp.float64) - d.gyr_spec.b) / s[1]
@@ -143,8 +141,8 @@ def test_structured_jacobian_is_jacfwd_of_the_residuals(x64, small_d2, kind):
     f0 = ua[0] / jnp.linalg.norm(ua[0])
     n = ua.shape[0]
     for w, wt in ((None, None), (jnp.linspace(0.0, 1.0, n), jnp.linspace(1.0, 0.1, n))):
-        r, j = jax.jit(lambda z_: _residuals_and_jacobian(lay, z_, f0, ua, ug, m, d.dt, w, wt))(z)  # noqa: B023
-        res = lambda z_: _sequence_residuals(lay, z_[:p], z_[p:], f0, ua, ug, m, d.dt, w, wt)  # noqa: B023, E731
+        r, j = jax.jit(lambda z_: filt.residuals_and_jacobian(z_, f0, ua, ug, m, d.dt, w, wt))(z)  # noqa: B023
+        res = lambda z_: filt.sequence_residuals(z_[:p], z_[p:], f0, ua, ug, m, d.dt, w, wt)  # noqa: B023, E731
         r2, j2 = jax.jit(lambda z_: (res(z_), jax.jacfwd(res)(z_)))(z)
         np.testing.assert_allclose(np.asarray(r), np.asarray(r2), rtol=0, atol=1e-14)
         np.testing.assert_allclose(np.asarray(j), np.asarray(j2), rtol=0, atol=1e-13)

@@ -438,6 +438,9 @@ class Filter(NamedTuple):
         predict_acc_readings: ``(theta, delta, f0_ref, u_gyr, mask, dt) -> (N, 3)`` noise-free
             spec-converted accelerometer readings of one sequence.
         sequence_residuals: ``(theta, delta, f0_ref, u_acc, u_gyr, mask, dt, weight=None, weight_t=None)``.
+        residuals_and_jacobian: ``(z, f0_ref, u_acc, u_gyr, mask, dt, weight=None, weight_t=None) -> (r, J)``
+            at ``z = (theta, delta)``: :attr:`sequence_residuals` and the Jacobian that ``update``
+            uses, by the chain rule through the carried gravity.
         prior_info: ``(hp, dtype=None) -> Lambda_0``, the datasheet prior information.
         init: ``(hp, dtype=None) -> OnlineState`` at the spec values.
         predict: ``(state, hp) -> state``: forgetting and process noise.
@@ -453,6 +456,7 @@ class Filter(NamedTuple):
     calibrate_gyr: Callable[..., Array]
     predict_acc_readings: Callable[..., Array]
     sequence_residuals: Callable[..., Array]
+    residuals_and_jacobian: Callable[..., tuple[Array, Array]]
     prior_info: Callable[..., Array]
     init: Callable[..., OnlineState]
     predict: Callable[..., OnlineState]
@@ -481,6 +485,7 @@ def make_filter(kind: str) -> Filter:
         calibrate_gyr=bind(_calibrate_gyr, lay),
         predict_acc_readings=bind(_predict_acc_readings, lay),
         sequence_residuals=bind(_sequence_residuals, lay),
+        residuals_and_jacobian=bind(_residuals_and_jacobian, lay),
         prior_info=bind(_prior_info, lay),
         init=bind(_init_state, lay),
         predict=bind(_predict, lay),
