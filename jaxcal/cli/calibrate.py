@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Iterator, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -17,7 +19,8 @@ from jaxcal.recording import atomic_output, load_recording
 # The methods (jax, flax, optimistix) are imported inside the functions that use them, so that
 # registering these commands costs nothing (`jaxcal --help`, other commands).
 
-__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "method_options", "not_carried_text", "rest_bias"]
+__all__ = ["OPTION_FLAGS", "STARTUP_BIAS_NOTE", "Flag", "applied_output", "method_options", "not_carried_text", "options_from_diagnose",
+           "rest_bias"]
 
 
 # ----------------------------------------------------------------------------- calibrate
@@ -88,6 +91,10 @@ def _add_calibrate(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
     p.add_argument("--no-held-out", dest="held_out", action="store_false",
                    help="skip the held-out figure (leave-poses-out, rest folds or a validation refit: seconds)")
+    p.add_argument("--from-diagnose", metavar="REPORT",
+                   help="switch on the options that model what a `jaxcal diagnose` report names (its report.json, or "
+                        "the folder it wrote): e.g. a named gyr g_sensitivity sets --g-sensitivity (online, multipos); "
+                        "the named effects the method cannot model are listed")
     defaults = _option_defaults()
     groups: dict[str, argparse._ArgumentGroup] = {}
     for field, spec in dict(OPTION_FLAGS).items():
@@ -134,6 +141,26 @@ def method_options(args: argparse.Namespace) -> Any:
     return kind(**values)
 
 
+def options_from_diagnose(path: str, options: Any, method: str) -> Any:
+    """``options`` with what the ``jaxcal diagnose`` report at ``path`` (``report.json`` or the folder
+    holding it) names switched on (:func:`jaxcal.methods.from_report.options_from_report`); one line on
+    stderr says what was used and what the method cannot model. A missing or malformed report is a
+    usage error naming ``--from-diagnose``."""
+    from jaxcal.methods.from_report import options_from_report
+
+    f = Path(path) / "report.json" if Path(path).is_dir() else Path(path)
+    try:
+        out = options_from_report(options, json.loads(f.read_text()))
+    except OSError as e:
+        raise UsageError(f"--from-diagnose {path}: cannot read {f} ({e.strerror or e})") from None
+    except ValueError as e:  # not JSON, or not a report
+        raise UsageError(f"--from-diagnose {path}: {f}: {str(e).splitlines()[0]}") from None
+    used = ", ".join(out.modelled) or "nothing"
+    rest = f"; not in {method}'s model: {', '.join(out.not_modelled)}" if out.not_modelled else ""
+    print(f"{PROG}: from {f}: {method} models {used}{rest}", file=sys.stderr)
+    return out
+
+
 def _run_calibrate(args: argparse.Namespace) -> int:
     from jaxcal import methods
     from jaxcal.methods import CalibrationModel, ModelError
@@ -144,6 +171,10 @@ def _run_calibrate(args: argparse.Namespace) -> int:
         raise UsageError(f"--out {args.out}: model files are .npz")
     _check_out_file(args.out, [args.recording])
     options = method_options(args)  # before reading data
+    from_report = None
+    if args.from_diagnose is not None:
+        from_report = options_from_diagnose(args.from_diagnose, options, args.method)
+        options = from_report.options
     rec = load_recording(args.recording)
     log = _progress(args)
     t0 = time.perf_counter()
@@ -160,6 +191,9 @@ def _run_calibrate(args: argparse.Namespace) -> int:
     if why is not None:
         print(f"{PROG}: warning: {args.method}: {why}; written because of --force", file=sys.stderr)
         desc = {**desc, "contradiction": why}
+    if from_report is not None:
+        desc = {**desc, "from_diagnose": {"report": str(args.from_diagnose), "modelled": list(from_report.modelled),
+                                          "not_modelled": list(from_report.not_modelled)}}
     model = CalibrationModel(model.method, model.sensors, model.state, {**model.meta, **desc})
     save_model(model, args.out)
     for line in summary_lines(desc):

@@ -137,7 +137,9 @@ class Method(NamedTuple):
         apply: ``apply(state, meta, rec) -> {"acc_cal": ..., "gyr_cal": ...}``.
         options: the method's options type (a ``NamedTuple`` with a default for every field; its
             class attribute ``FLAGS``, field -> :class:`~jaxcal.flags.Flag`, declares the
-            ``calibrate`` flags of its fields, :data:`SHARED_FLAGS` for a field another type shares).
+            ``calibrate`` flags of its fields, :data:`SHARED_FLAGS` for a field another type shares;
+            optional ``EFFECTS``, ``(sensor, effect)`` -> a boolean field, the vocabulary effects a
+            ``jaxcal diagnose`` report can switch on, :mod:`jaxcal.methods.from_report`).
         doc: one-line description (``jaxcal methods``).
         check: optional ``check(state, meta, sensors)`` run by ``load_model``; raises :class:`ModelError`.
         quality: optional ``quality(rec, options, model, *, held_out, log) -> (in_sample, held_out)``,

@@ -109,6 +109,7 @@ class MultiposOptions(NamedTuple):
                          show_default="none: left in G"),
         **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window")},
     }
+    EFFECTS = {("gyr", "g_sensitivity"): "g_sensitivity"}  # what a diagnose report can switch on (methods.from_report)
 
 
 def multipos_config(rec: Recording, options: MultiposOptions) -> MultiposConfig:

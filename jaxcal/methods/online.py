@@ -123,6 +123,7 @@ class OnlineOptions(NamedTuple):
         **{k: SHARED_FLAGS[k] for k in ("prior_scale", "prior_cross", "init_duration", "min_rest", "rest_window",
                                         "g_sensitivity", "datasheet_prior")},
     }
+    EFFECTS = {("gyr", "g_sensitivity"): "g_sensitivity"}  # what a diagnose report can switch on (methods.from_report)
 
 
 class RestSequences(NamedTuple):
