@@ -750,6 +750,43 @@ def skew_run(quick: bool) -> dict:
     return out
 
 
+def clock_windows_run(k: int = 4) -> dict:
+    """Both BROAD trials through ``align`` in ``k`` consecutive windows (:func:`jaxcal.diagnose.clock_check.clock_windows`):
+    does one offset line (one skew) hold each trial?"""
+    from jaxcal.diagnose.clock_check import clock_windows
+
+    out = {}
+    for name, path in BROAD.items():
+        t0 = time.perf_counter()
+        out[name] = clock_windows(load_recording(path), k) | {"wall_s": time.perf_counter() - t0}
+        print(name, out[name]["line"], flush=True)
+    return out
+
+
+def clock_windows_markdown(res: dict) -> str:
+    L = ["### Does one clock skew hold? `align` in windows", "",
+         "Written by `python -m experiments.discrepancy_benchmark --part clock_windows`. Each BROAD trial cut into "
+         f"{len(next(iter(res.values()))['windows'])} consecutive windows, each aligned on its own "
+         "(`jaxcal.diagnose.clock_check.clock_windows`: its own offset, at the window's middle, and its own skew); the "
+         "line through the windows' gyroscope offsets is the skew they imply, and its chi-square (k - 2 degrees of "
+         "freedom) says whether one offset line holds the trial (`line_check`). `align`'s single skew, and its comparison "
+         "with qmt's above, describes a trial only where it does.", "",
+         "| trial | window (s) | gyr offset (ms) | gyr skew in the window (ppm) | acc skew in the window (ppm) |",
+         "|---|---|---|---|---|"]
+    for name, r in res.items():
+        for w in r["windows"]:
+            acc = w["per_sensor_skew"].get("acc")
+            L.append(f"| {name} | {w['t0_s']:.0f}-{w['t1_s']:.0f} | {w['tau'] * 1e3:.3f} +- {w['tau_stderr'] * 1e3:.3f} | "
+                     f"{w['clock_skew']:+.1f} +- {w['clock_skew_stderr']:.1f} | "
+                     + ("-" if acc is None else f"{acc['clock_skew']:+.1f} +- {acc['stderr']:.1f}") + " |")
+    L += ["", "| trial | skew from the windows' offsets (ppm) | chi-square / dof | p | one line holds | wall (s) |", "|---|---|---|---|---|---|"]
+    for name, r in res.items():
+        c = r["line"]
+        L.append(f"| {name} | {c['slope_ppm']:+.2f} +- {c['slope_se_ppm']:.2f} | {c['chi2']:.1f} / {c['dof']} | {c['p']:.2g} | "
+                 f"{'yes' if c['p'] >= 0.01 else '**NO**'} | {r['wall_s']:.0f} |")
+    return "\n".join(L) + "\n"
+
+
 def skew_markdown(res: dict) -> str:
     L = ["## Clock skew (issue 29)", "",
          "Written by `python -m experiments.discrepancy_benchmark --part skew`. A clock skew `s` (ppm) means the reference "
@@ -819,6 +856,12 @@ def main(quick: bool, part: str = "all") -> None:
         cur["skew"] = sk
         dump(cur)
         write_md_section(skew_markdown(sk), "skew", stem)
+    if part in ("all", "clock_windows") and not quick:
+        cw = clock_windows_run()
+        cur = json.loads(js.read_text()) if js.exists() else {}
+        cur["clock_windows"] = cw
+        dump(cur)
+        write_md_section(clock_windows_markdown(cw), "clock_windows", stem)
     if part in ("all", "benchmark"):
         res = run(quick)
         cur = json.loads(js.read_text()) if js.exists() else {}
@@ -831,6 +874,6 @@ def main(quick: bool, part: str = "all") -> None:
 if __name__ == "__main__":
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--part", choices=("all", "real", "rigs", "scale", "skew", "benchmark"), default="all", help="only one section of the report")
+    ap.add_argument("--part", choices=("all", "real", "rigs", "scale", "skew", "clock_windows", "benchmark"), default="all", help="only one section of the report")
     a = ap.parse_args()
     main(a.quick, a.part)

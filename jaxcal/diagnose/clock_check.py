@@ -1,0 +1,90 @@
+"""Is one time offset and one clock skew enough for a recording? (issue 29: clocks that drift)
+
+``align`` fits the reference clock as ``t_ref = t_imu (1 + s 1e-6) + offset``: its offset is a line
+in time. :func:`clock_windows` runs ``align`` on ``k`` consecutive windows of the recording, each
+with its own offset (at the window's own epoch) and skew, and :func:`line_check` tests whether the
+windows' offsets lie on one line: a chi-square of their weighted residuals about the weighted
+least-squares line, ``k - 2`` degrees of freedom. A small p-value says the offset bends or steps
+over the recording (a varying offset, as MoCap2GT models it; a reference that drops or repeats
+frames), so a single skew, and a comparison of single skews, does not describe it.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from jaxcal.diagnose.align import align_recording
+from jaxcal.diagnose.system import SelectConfig
+from jaxcal.recording import Recording, take_rows
+
+__all__ = ["LineCheck", "clock_windows", "line_check"]
+
+
+class LineCheck(NamedTuple):
+    """The weighted least-squares line through offsets ``tau_k`` (s) at epochs ``t_k`` (s).
+
+    Attributes:
+        slope_ppm: the line's slope, ppm (1e-6 s per s: the skew the windows' offsets imply).
+        slope_se_ppm: its standard error, ppm.
+        chi2: sum of the squared standardised residuals about the line.
+        dof: ``k - 2``.
+        p: the chi-square's upper tail probability (``nan`` without a degree of freedom).
+    """
+
+    slope_ppm: float
+    slope_se_ppm: float
+    chi2: float
+    dof: int
+    p: float
+
+
+def line_check(epoch_s: np.ndarray, tau_s: np.ndarray, tau_se_s: np.ndarray) -> LineCheck:
+    """The line through the offsets and how well it holds them (:class:`LineCheck`).
+
+    Args:
+        epoch_s: (K,) the epochs the offsets are given at (s), K >= 2.
+        tau_s: (K,) offsets (s).
+        tau_se_s: (K,) their standard errors (s), positive.
+    """
+    t, y, se = (np.asarray(a, np.float64) for a in (epoch_s, tau_s, tau_se_s))
+    if t.ndim != 1 or t.size < 2 or y.shape != t.shape or se.shape != t.shape or np.any(~(se > 0)):
+        raise ValueError("line_check: need K >= 2 epochs, offsets and positive standard errors of one length")
+    w = 1.0 / se**2
+    A = np.stack([np.ones_like(t), t - np.average(t, weights=w)], axis=1)
+    cov = np.linalg.inv(A.T @ (A * w[:, None]))
+    beta = cov @ (A.T @ (w * y))
+    chi2 = float(np.sum(w * (y - A @ beta) ** 2))
+    dof = int(t.size - 2)
+    return LineCheck(float(beta[1] * 1e6), float(np.sqrt(cov[1, 1]) * 1e6), chi2, dof,
+                     float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan"))
+
+
+def clock_windows(rec: Recording, k: int = 4, pose_sigma: float | None = None,
+                  config: SelectConfig = SelectConfig()) -> dict[str, Any]:
+    """``align`` on ``k`` consecutive windows of ``rec`` and the line through their offsets.
+
+    Returns ``{"windows": [{t0_s, t1_s, epoch_s, tau, tau_stderr, clock_skew, clock_skew_stderr,
+    per_sensor_tau, per_sensor_skew}, ...], "line": LineCheck as a dict}`` (``tau`` in s, skews in
+    ppm, as ``align.json``).
+
+    Args:
+        rec: a recording with a reference pose (what :func:`jaxcal.diagnose.align.align_recording` takes).
+        k: windows, at least 3 (two points always lie on a line).
+        pose_sigma: as ``align_recording``.
+        config: as ``align_recording``.
+    """
+    if k < 3:
+        raise ValueError(f"clock_windows: k = {k}; at least 3 windows, or the line holds them by construction")
+    edges = np.linspace(0, rec.n, k + 1).astype(int)
+    rows = []
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        al = align_recording(take_rows(rec, np.arange(a, b)), pose_sigma, config).align
+        rows.append({"t0_s": float(rec.t[a]), "t1_s": float(rec.t[b - 1]), "epoch_s": al["clock_skew_epoch_s"],
+                     "tau": al["tau"], "tau_stderr": al["tau_stderr"], "clock_skew": al["clock_skew"],
+                     "clock_skew_stderr": al["stderr"]["clock_skew"], "per_sensor_tau": al["tau_per_sensor"],
+                     "per_sensor_skew": al["clock_skew_per_sensor"]})
+    line = line_check(*(np.array([r[q] for r in rows]) for q in ("epoch_s", "tau", "tau_stderr")))
+    return {"windows": rows, "line": line._asdict()}
