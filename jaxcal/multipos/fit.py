@@ -87,6 +87,26 @@ class MultiposFit(NamedTuple):
     gyr_cost: Float[Array, ""]
 
 
+def _scale_start(args: GyroArgs, zero: Float[Array, " Q"]) -> tuple[Float[Array, ""], Float[Array, " S"]]:
+    """The gyro fit's scalar start ``s0`` (``G = s I``): the point of least cost on a grid over both
+    signs, 4 per decade, and the grid's costs (the data rows alone, no prior).
+
+    Known closed rotations are left out of the cost that picks ``s0`` wherever transitions are fitted:
+    any whole number of revolutions closes a turn, so their rows have a minimum at every count and the
+    coarse grid can land on a wrong one (a noise-free Ferraris fold chose ten revolutions). With no
+    transition (the turns alone), the known rows pick it. The returned costs include every row."""
+    grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(zero.dtype)
+
+    def costs(a: GyroArgs) -> Float[Array, " S"]:
+        return jnp.nan_to_num(jax.vmap(lambda s: jnp.sum(gyr_residuals(zero, a._replace(scale=s)) ** 2))(grid), nan=jnp.inf)
+
+    c = costs(args)
+    if args.known is None:
+        return grid[jnp.argmin(c)], c
+    free = grid[jnp.argmin(costs(args._replace(known=None)))]
+    return jnp.where(jnp.sum(args.w) > 0, free, grid[jnp.argmin(c)]), c
+
+
 def fit_prepared(
     data: MultiposData,
     config: MultiposConfig = MultiposConfig(),
@@ -161,15 +181,12 @@ def fit_prepared(
     if turns is not None:
         turns_w = jnp.ones(turns.angle.shape[0], dtype) if turns_w is None else turns_w
         args = args._replace(turns=turns, turns_w=turns_w, acc=acc)
-    # scale initialisation: grid over G = s I, both signs (4 per decade)
-    grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(dtype)
     zero = jnp.zeros(18 if fit_gs else 9, dtype)
 
     def cost_at(s, th):  # the data rows alone (no prior)
         return jnp.sum(gyr_residuals(th, args._replace(scale=s)) ** 2)
 
-    costs = jnp.nan_to_num(jax.vmap(lambda s: cost_at(s, zero))(grid), nan=jnp.inf)
-    s0 = grid[jnp.argmin(costs)]
+    s0, costs = _scale_start(args, zero)
     theta0 = zero
     if turns is not None and turns.angle.shape[0] >= 3:  # label-free Ferraris start, if it is better
         gc = turn_init(bg, acc, turns, turns_w * turns.seg_ok.astype(dtype), jnp.sign(s0))
