@@ -784,6 +784,21 @@ def clock_windows_markdown(res: dict) -> str:
         c = r["line"]
         L.append(f"| {name} | {c['slope_ppm']:+.2f} +- {c['slope_se_ppm']:.2f} | {c['chi2']:.1f} / {c['dof']} | {c['p']:.2g} | "
                  f"{'yes' if c['p'] >= 0.01 else '**NO**'} | {r['wall_s']:.0f} |")
+    split = []  # windows where the two sensors' own skews differ by more than 3 standard errors
+    for name, r in res.items():
+        for w in r["windows"]:
+            a, g = w["per_sensor_skew"].get("acc"), w["per_sensor_skew"].get("gyr")
+            if a and g and abs(a["clock_skew"] - g["clock_skew"]) > 3 * np.hypot(a["stderr"], g["stderr"]):
+                split.append(f"{name} {w['t0_s']:.0f}-{w['t1_s']:.0f} s ({g['clock_skew']:+.0f} against {a['clock_skew']:+.0f} ppm)")
+    peak = max(abs(w["clock_skew"]) for r in res.values() for w in r["windows"])
+    L += ["", f"One clock gives both sensors one skew, and a crystal clock does not change its rate by tens of ppm within "
+          f"minutes; here the windows' gyroscope skews reach {peak:.0f} ppm, and the two sensors' own skews differ by more "
+          f"than 3 standard errors in {len(split)} windows" + (f": {'; '.join(split)}" if split else "") + ". So where a "
+          "line does not hold, the windows' offsets carry more than a clock: something the model leaves out moves them, "
+          "and their standard errors do not cover it (what it is, this check does not say; candidates are motion the "
+          "reference does not follow and a reference that drops or repeats frames). A single skew, `align`'s or qmt's, then does not describe the trial, and "
+          "`align`'s interval is narrower than the trial supports: the disagreement with qmt on broad21 above is not "
+          "a question of precision."]
     return "\n".join(L) + "\n"
 
 
