@@ -5,6 +5,8 @@ specific force are closed form) with the IMU at the reference point in the refer
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -31,6 +33,19 @@ def exp_so3_np(v: np.ndarray) -> np.ndarray:
     if th < 1e-12:
         return np.eye(3) + k
     return np.eye(3) + np.sin(th) / th * k + (1 - np.cos(th)) / th**2 * (k @ k)
+
+
+def fake_align(tau0: float, ppm: float, step: float = 0.0):
+    """A stand-in for ``align_recording``: the window's offset at its middle from a known clock
+    (``tau0 + ppm 1e-6 t``, plus ``step`` after 100 s), so the windowing is checked without a fit."""
+
+    def align(rec, pose_sigma=None, config=None):
+        mid = 0.5 * float(rec.t[0] + rec.t[-1])
+        tau = tau0 + ppm * 1e-6 * mid + (step if mid > 100.0 else 0.0)
+        return SimpleNamespace(align={"tau": tau, "tau_stderr": 2e-5, "clock_skew": ppm, "clock_skew_epoch_s": mid,
+                                      "stderr": {"clock_skew": 1.0}, "tau_per_sensor": {}, "clock_skew_per_sensor": {}})
+
+    return align
 
 
 def _sines(t, A, F, C, d=0):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import make_rec, truth_pos, truth_rot
+from helpers import fake_align, make_rec, truth_pos, truth_rot
 from scipy.spatial.transform import Rotation
 
 from jaxcal.cli import main
@@ -84,17 +84,24 @@ def test_groundtruth_is_the_imu_pose_on_the_imu_clock(rig):
     assert np.allclose(res.align["bias_gyr_rads"], [0.01, -0.02, 0.005], atol=3e-3)
 
 
-def test_cli_align_writes_the_conventions_files(rig, tmp_path):
+def test_cli_align_writes_the_conventions_files(rig, tmp_path, monkeypatch, capsys):
     """The command writes the library's alignment in the conventions' files. The gyroscope's path
     (tau, the rotation, the quaternions) agrees to rounding; the lever arm to within 2 standard
     errors: where the accelerometer's Levenberg-Marquardt refit stops is not bit-reproducible (one
     CI run, a93141d: r differed by 0.36, 0.79, 2.62 mm against s.e. 2.8, 2.3, 3.0 mm, tau by 0;
-    locally 0 in every run), so positions and velocities are compared within that."""
+    locally 0 in every run), so positions and velocities are compared within that. ``--clock-windows
+    3`` adds ``clock_check`` (the windows' alignments stood in for by a known steady clock: its
+    windowing is tests/test_clock_check.py's)."""
+    from jaxcal.diagnose import clock_check
+
+    monkeypatch.setattr(clock_check, "align_recording", fake_align(4e-3, 2.0))
     srec, _, res = rig
     p = tmp_path / "rig.npz"
     save_recording(srec, p)
-    assert main(["align", str(p), "--out", str(tmp_path / "al")]) == 0
+    assert main(["align", str(p), "--out", str(tmp_path / "al"), "--clock-windows", "3"]) == 0
+    assert "one clock skew holds" in capsys.readouterr().err
     a = json.loads((tmp_path / "al" / "align.json").read_text())
+    assert len(a["clock_check"]["windows"]) == 3 and a["clock_check"]["line"]["slope_ppm"] == pytest.approx(2.0)
     for k in ("tau", "R_ref_imu", "r", "stderr"):
         assert k in a
     assert set(a["stderr"]) >= {"tau", "r"}

@@ -5,8 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import fake_align
 
+from jaxcal.diagnose import clock_check
 from jaxcal.diagnose.clock_check import line_check
+from jaxcal.recording import Recording
 
 
 def test_offsets_on_a_line_give_its_slope_and_no_misfit():
@@ -40,3 +43,28 @@ def test_p_values_of_true_lines_are_uniform():
 def test_bad_input_is_refused(args):
     with pytest.raises(ValueError, match="line_check"):
         line_check(*(np.array(a) for a in args))
+
+
+def _still(seconds: float = 200.0, fs: float = 100.0) -> Recording:
+    n = int(seconds * fs)
+    return Recording(t=np.arange(n) / fs, acc=np.tile([0.0, 0.0, 1.0], (n, 1)), gyr=np.zeros((n, 3)), acc_unit="g",
+                     gyr_unit="rad/s")
+
+
+def test_windows_cover_the_recording_once_and_a_steady_clock_holds(monkeypatch):
+    monkeypatch.setattr(clock_check, "align_recording", fake_align(4e-3, -1.5))
+    rec = _still()
+    out = clock_check.clock_windows(rec, 4)
+    w = out["windows"]
+    assert len(w) == 4 and w[0]["t0_s"] == rec.t[0] and w[-1]["t1_s"] == rec.t[-1]
+    assert all(np.isclose(a["t1_s"] + 0.01, b["t0_s"]) for a, b in zip(w[:-1], w[1:]))  # consecutive, every row once
+    assert out["line"]["slope_ppm"] == pytest.approx(-1.5, abs=1e-6) and out["line"]["chi2"] < 1e-9  # measured 2e-16, 0
+    assert out["line"]["p"] > 0.99
+
+
+def test_a_stepped_offset_is_not_held_by_one_line(monkeypatch):
+    monkeypatch.setattr(clock_check, "align_recording", fake_align(4e-3, 0.0, step=-1e-3))
+    out = clock_check.clock_windows(_still(), 4)
+    assert out["line"]["p"] < 1e-6
+    with pytest.raises(ValueError, match="at least 3 windows"):
+        clock_check.clock_windows(_still(), 2)

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _output_dir, _real, _same_file, register_command
+from jaxcal.cli.core import PROG, Command, UsageError, _check_out_file, _count, _output_dir, _real, _same_file, register_command
 from jaxcal.recording import Recording, load_recording
 
 if TYPE_CHECKING:  # annotations only: jaxcal.diagnose is imported on use
@@ -141,6 +141,29 @@ def _add_align(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose-sigma", type=_real(0.0, 1.0), default=None, metavar="S",
                    help="Gaussian width (s) of the pose derivatives (default: chosen per sensor from where the reference "
                         "keeps its gain against the sensor)")
+    p.add_argument("--clock-windows", type=_count(3, 100), default=None, metavar="K",
+                   help="also align K consecutive windows and test whether their offsets lie on one line, i.e. whether "
+                        "one clock skew holds the recording (align.json clock_check; about one more alignment's time)")
+
+
+def _clock_check(rec: Recording, args: argparse.Namespace) -> dict:
+    """``--clock-windows K``: :func:`jaxcal.diagnose.clock_check.clock_windows`, and one line on stderr
+    (a warning where one offset line does not hold the windows)."""
+    from jaxcal.diagnose.clock_check import clock_windows
+
+    print(f"{PROG}: aligning {args.clock_windows} windows of {args.recording} (does one clock skew hold?) ...", file=sys.stderr)
+    try:
+        out = clock_windows(rec, args.clock_windows, args.pose_sigma)
+    except ValueError as e:  # a window without a usable reference
+        raise UsageError(f"{args.recording}: --clock-windows {args.clock_windows}: {e}") from None
+    c = out["line"]
+    how = f"chi-square {c['chi2']:.1f} on {c['dof']} dof, p {c['p']:.2g}; the windows' skew {c['slope_ppm']:+.2f} ppm"
+    if c["p"] < 0.01:
+        print(f"{PROG}: warning: one clock skew does not hold {args.recording}: the offsets of {args.clock_windows} windows "
+              f"are not on one line ({how}); align.json's single skew does not describe it", file=sys.stderr)
+    else:
+        print(f"{PROG}: one clock skew holds: the windows' offsets lie on one line ({how})", file=sys.stderr)
+    return out
 
 
 def _run_align(args: argparse.Namespace) -> int:
@@ -163,6 +186,8 @@ def _run_align(args: argparse.Namespace) -> int:
         bad = report_gate(res.report, gate, res.align, scales=baseline_scales(res.results, "affine"))
         if bad:
             raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
+        if args.clock_windows is not None:
+            res = res._replace(align={**res.align, "clock_check": _clock_check(rec, args)})
         al.write_alignment(d, res)
     a = res.align
     r = "-" if a["r"] is None else "[" + ", ".join(f"{1e3 * v:.1f}" for v in a["r"]) + "] mm"
