@@ -771,14 +771,16 @@ def clock_windows_markdown(res: dict) -> str:
          "line through the windows' gyroscope offsets is the skew they imply, and its chi-square (k - 2 degrees of "
          "freedom) says whether one offset line holds the trial (`line_check`). `align`'s single skew, and its comparison "
          "with qmt's above, describes a trial only where it does.", "",
-         "| trial | window (s) | gyr offset (ms) | gyr skew in the window (ppm) | acc skew in the window (ppm) |",
-         "|---|---|---|---|---|"]
+         "| trial | window (s) | gyr offset (ms) | gyr skew in the window (ppm) | acc skew in the window (ppm) | "
+         "reference missing (% of rows) | gyro RMS (rad/s) |",
+         "|---|---|---|---|---|---|---|"]
     for name, r in res.items():
         for w in r["windows"]:
             acc = w["per_sensor_skew"].get("acc")
             L.append(f"| {name} | {w['t0_s']:.0f}-{w['t1_s']:.0f} | {w['tau'] * 1e3:.3f} +- {w['tau_stderr'] * 1e3:.3f} | "
                      f"{w['clock_skew']:+.1f} +- {w['clock_skew_stderr']:.1f} | "
-                     + ("-" if acc is None else f"{acc['clock_skew']:+.1f} +- {acc['stderr']:.1f}") + " |")
+                     + ("-" if acc is None else f"{acc['clock_skew']:+.1f} +- {acc['stderr']:.1f}")
+                     + f" | {100 * (1 - w['ref_valid_frac']):.1f} | {w['gyr_rms']:.1f} |")
     L += ["", "| trial | skew from the windows' offsets (ppm) | chi-square / dof | p | one line holds | wall (s) |", "|---|---|---|---|---|---|"]
     for name, r in res.items():
         c = r["line"]
@@ -789,7 +791,8 @@ def clock_windows_markdown(res: dict) -> str:
         for w in r["windows"]:
             a, g = w["per_sensor_skew"].get("acc"), w["per_sensor_skew"].get("gyr")
             if a and g and abs(a["clock_skew"] - g["clock_skew"]) > 3 * np.hypot(a["stderr"], g["stderr"]):
-                split.append(f"{name} {w['t0_s']:.0f}-{w['t1_s']:.0f} s ({g['clock_skew']:+.0f} against {a['clock_skew']:+.0f} ppm)")
+                split.append(f"{name} {w['t0_s']:.0f}-{w['t1_s']:.0f} s ({g['clock_skew']:+.0f} against {a['clock_skew']:+.0f} "
+                             f"ppm; reference missing in {100 * (1 - w['ref_valid_frac']):.0f} % of its rows)")
     peak = max(abs(w["clock_skew"]) for r in res.values() for w in r["windows"])
     L += ["", f"One clock gives both sensors one skew, and a crystal clock does not change its rate by tens of ppm within "
           f"minutes; here the windows' gyroscope skews reach {peak:.0f} ppm, and the two sensors' own skews differ by more "

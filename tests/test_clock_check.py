@@ -46,9 +46,11 @@ def test_bad_input_is_refused(args):
 
 
 def _still(seconds: float = 200.0, fs: float = 100.0) -> Recording:
+    """A recording whose gyro norm is 0.5 rad/s everywhere and whose reference is missing on every
+    fourth row of the first half (``ref_valid``)."""
     n = int(seconds * fs)
-    return Recording(t=np.arange(n) / fs, acc=np.tile([0.0, 0.0, 1.0], (n, 1)), gyr=np.zeros((n, 3)), acc_unit="g",
-                     gyr_unit="rad/s")
+    return Recording(t=np.arange(n) / fs, acc=np.tile([0.0, 0.0, 1.0], (n, 1)), gyr=np.tile([0.3, -0.4, 0.0], (n, 1)),
+                     acc_unit="g", gyr_unit="rad/s", ref_valid=(np.arange(n) % 4 != 0) | (np.arange(n) >= n // 2))
 
 
 def test_windows_cover_the_recording_once_and_a_steady_clock_holds(monkeypatch):
@@ -60,6 +62,8 @@ def test_windows_cover_the_recording_once_and_a_steady_clock_holds(monkeypatch):
     assert all(np.isclose(a["t1_s"] + 0.01, b["t0_s"]) for a, b in zip(w[:-1], w[1:]))  # consecutive, every row once
     assert out["line"]["slope_ppm"] == pytest.approx(-1.5, abs=1e-6) and out["line"]["chi2"] < 1e-9  # measured 2e-16, 0
     assert out["line"]["p"] > 0.99
+    assert [x["ref_valid_frac"] for x in w] == [0.75, 0.75, 1.0, 1.0]
+    assert all(x["gyr_rms"] == pytest.approx(0.5, rel=1e-12) for x in w)  # measured 1e-16
 
 
 def test_a_stepped_offset_is_not_held_by_one_line(monkeypatch):

@@ -67,8 +67,10 @@ def clock_windows(rec: Recording, k: int = 4, pose_sigma: float | None = None,
     """``align`` on ``k`` consecutive windows of ``rec`` and the line through their offsets.
 
     Returns ``{"windows": [{t0_s, t1_s, epoch_s, tau, tau_stderr, clock_skew, clock_skew_stderr,
-    per_sensor_tau, per_sensor_skew}, ...], "line": LineCheck as a dict}`` (``tau`` in s, skews in
-    ppm, as ``align.json``).
+    per_sensor_tau, per_sensor_skew, ref_valid_frac, gyr_rms}, ...], "line": LineCheck as a dict}``
+    (``tau`` in s, skews in ppm, as ``align.json``; ``ref_valid_frac``: the share of the window's rows
+    with a usable reference; ``gyr_rms``: the RMS of the gyroscope's norm in the recording's unit, the
+    motion that dates the window).
 
     Args:
         rec: a recording with a reference pose (what :func:`jaxcal.diagnose.align.align_recording` takes).
@@ -79,12 +81,14 @@ def clock_windows(rec: Recording, k: int = 4, pose_sigma: float | None = None,
     if k < 3:
         raise ValueError(f"clock_windows: k = {k}; at least 3 windows, or the line holds them by construction")
     edges = np.linspace(0, rec.n, k + 1).astype(int)
+    valid = np.ones(rec.n, bool) if rec.ref_valid is None else np.asarray(rec.ref_valid, bool)
     rows = []
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         al = align_recording(take_rows(rec, np.arange(a, b)), pose_sigma, config).align
         rows.append({"t0_s": float(rec.t[a]), "t1_s": float(rec.t[b - 1]), "epoch_s": al["clock_skew_epoch_s"],
                      "tau": al["tau"], "tau_stderr": al["tau_stderr"], "clock_skew": al["clock_skew"],
                      "clock_skew_stderr": al["stderr"]["clock_skew"], "per_sensor_tau": al["tau_per_sensor"],
-                     "per_sensor_skew": al["clock_skew_per_sensor"]})
+                     "per_sensor_skew": al["clock_skew_per_sensor"], "ref_valid_frac": float(np.mean(valid[a:b])),
+                     "gyr_rms": float(np.sqrt(np.mean(np.sum(np.asarray(rec.gyr[a:b], np.float64) ** 2, axis=1))))})
     line = line_check(*(np.array([r[q] for r in rows]) for q in ("epoch_s", "tau", "tau_stderr")))
     return {"windows": rows, "line": line._asdict()}
