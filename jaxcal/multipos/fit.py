@@ -87,6 +87,11 @@ class MultiposFit(NamedTuple):
     gyr_cost: Float[Array, ""]
 
 
+def _data_cost(args: GyroArgs, s: Float[Array, ""], theta: Float[Array, " Q"]) -> Float[Array, ""]:
+    """The gyro fit's cost at scale ``s`` and ``theta``: its data rows alone (no prior)."""
+    return jnp.sum(gyr_residuals(theta, args._replace(scale=s)) ** 2)
+
+
 def _scale_start(args: GyroArgs, zero: Float[Array, " Q"]) -> tuple[Float[Array, ""], Float[Array, " S"]]:
     """The gyro fit's scalar start ``s0`` (``G = s I``): the point of least cost on a grid over both
     signs, 4 per decade, and the grid's costs (the data rows alone, no prior).
@@ -98,7 +103,7 @@ def _scale_start(args: GyroArgs, zero: Float[Array, " Q"]) -> tuple[Float[Array,
     grid = jnp.concatenate([jnp.logspace(-7, 1, 33), -jnp.logspace(-7, 1, 33)]).astype(zero.dtype)
 
     def costs(a: GyroArgs) -> Float[Array, " S"]:
-        return jnp.nan_to_num(jax.vmap(lambda s: jnp.sum(gyr_residuals(zero, a._replace(scale=s)) ** 2))(grid), nan=jnp.inf)
+        return jnp.nan_to_num(jax.vmap(lambda s: _data_cost(a, s, zero))(grid), nan=jnp.inf)
 
     c = costs(args)
     if args.known is None:
@@ -182,16 +187,12 @@ def fit_prepared(
         turns_w = jnp.ones(turns.angle.shape[0], dtype) if turns_w is None else turns_w
         args = args._replace(turns=turns, turns_w=turns_w, acc=acc)
     zero = jnp.zeros(18 if fit_gs else 9, dtype)
-
-    def cost_at(s, th):  # the data rows alone (no prior)
-        return jnp.sum(gyr_residuals(th, args._replace(scale=s)) ** 2)
-
     s0, costs = _scale_start(args, zero)
     theta0 = zero
     if turns is not None and turns.angle.shape[0] >= 3:  # label-free Ferraris start, if it is better
         gc = turn_init(bg, acc, turns, turns_w * turns.seg_ok.astype(dtype), jnp.sign(s0))
         th_c = zero.at[:9].set((gc / s0 - jnp.eye(3, dtype=dtype)).ravel())
-        c_c = jnp.nan_to_num(cost_at(s0, th_c), nan=jnp.inf)
+        c_c = jnp.nan_to_num(_data_cost(args, s0, th_c), nan=jnp.inf)
         theta0 = jnp.where(c_c < jnp.min(costs), th_c, zero)
     args = args._replace(scale=s0, prior=config.prior)
     solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-12)
