@@ -77,6 +77,9 @@ class OnlineOptions(NamedTuple):
             (every sample, the simulation's recipe).
         g_sensitivity: between rests, also take the gyroscope's g-sensitivity ``G`` from the rests
             (as ``multipos --g-sensitivity``) and out of the rates the filter integrates.
+        g_sensitivity_auto: between rests, where ``g_sensitivity`` is off, let the rests choose it:
+            on where their gyroscope means are predicted better with it, left one rest out at a
+            time (:func:`jaxcal.field.choose_gsens`; each held-out fold chooses from its own rests).
         acc_from: between rests, where the accelerometer comes from: ``"rests"`` (its fit to the
             rests' ``|f| = 1 g``, held there while the filter corrects the gyroscope; the rests
             determine the accelerometer, and the filter's carried directions hold the gyroscope's
@@ -99,6 +102,7 @@ class OnlineOptions(NamedTuple):
     folds: int = 10
     residuals: str = "rests"
     g_sensitivity: bool = False
+    g_sensitivity_auto: bool = True
     acc_from: str = "rests"
     datasheet_prior: bool = False
 
@@ -117,6 +121,10 @@ class OnlineOptions(NamedTuple):
         "residuals": Flag("--residuals", flags.choice("rests", "all"), None, "between rests: the accelerometer "
                           "residuals at the rests only, or at every sample (the simulation's recipe; motions carry "
                           "translational acceleration)", "rests|all"),
+        "g_sensitivity_auto": Flag("--g-sensitivity-auto", flags.choice("on", "off"), lambda v: v == "on",
+                                   "between rests, without --g-sensitivity: the gyroscope's g-sensitivity where "
+                                   "the rests' gyro means, each left out in turn, are predicted better with it "
+                                   "(one-standard-error rule), or never", "on|off", show_default="on"),
         "acc_from": Flag("--acc-from", flags.choice("rests", "filter"), None, "between rests: the accelerometer as "
                          "fitted to the rests (the filter corrects the gyroscope), or corrected by the filter too",
                          "rests|filter"),
@@ -216,6 +224,8 @@ class FieldSetup(NamedTuple):
         dt: sample period (s).
         kind: the filter's layout.
         init: the initial calibration from all the rests (:func:`jaxcal.field.rest_init`).
+        gsens_choice: the rests' :class:`~jaxcal.field.GsensChoice` (``None`` where the options
+            fix the g-sensitivity); ``config.g_sensitivity`` holds its outcome.
     """
 
     rests: RestSequences
@@ -225,6 +235,7 @@ class FieldSetup(NamedTuple):
     dt: float
     kind: str
     init: field.FieldInit
+    gsens_choice: field.GsensChoice | None = None
 
 
 def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
@@ -247,12 +258,18 @@ def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
     except ValueError as e:
         raise ModelError(f"online: {e}") from None
     init = field.rest_init(rests.data, config=config)
+    choice = None
+    if options.g_sensitivity_auto and not options.g_sensitivity:
+        choice = field.choose_gsens(rests.data, init.acc)
+        if choice.chosen:
+            config = config._replace(g_sensitivity=True)
+            init = field.rest_init(rests.data, config=config)
     acc = np.asarray(rec.acc, np.float64)
     noise = [((acc[a:b] - init.acc.b) @ init.acc.A.T).std(0).mean() for a, b in rests.intervals]
     hp = _hp(options, float(np.mean(noise)))
     if options.acc_from == "rests":
         hp = hp._replace(acc_prior_factor=HOLD)
-    return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True), init)
+    return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True), init, choice)
 
 
 def _fit_field(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, dict]:
@@ -263,20 +280,29 @@ def _fit_field(rec: Recording, options: OnlineOptions, log: Log) -> tuple[dict, 
         f"({int((~fs.rests.usable).sum())} saturated motions left out)")
     log(f"online: initialised from the rests (|f| = 1 g) and the gravity carried between them; streaming the "
         f"{'every sample' if options.residuals == 'all' else 'rest'} residuals ({fs.kind}) ...")
+    ch = fs.gsens_choice
+    if ch is not None and np.isfinite(ch.loo_bias):
+        log(f"online: the gyroscope's g-sensitivity {'taken' if ch.chosen else 'left out'}: the {ch.n_rests} rests' gyro "
+            f"means, each left out in turn, {'are' if ch.chosen else 'are not'} predicted better with it "
+            f"(mean squared error {ch.loo_gsens:.3g} +- {ch.se_gsens:.3g} against {ch.loo_bias:.3g} with a bias alone, "
+            "recorded gyro units squared; "
+            "--g-sensitivity-auto off to leave it out)")
     t0 = time.perf_counter()
     init = fs.init
     use = fs.rests.usable.astype(np.float64)
     cal = field.fit_field(fs.batch, init, fs.dt, fs.hp, fs.kind, options.residuals,
                           sigma_dir=field.carried_sigma(init, fs.rests.data, use))
     state = {s: linear_state(c)._asdict() for s, c in zip(SENSORS, cal[:2])}
-    if options.g_sensitivity:
+    if fs.config.g_sensitivity:
         state["gyr"][GSENS_KEY] = np.asarray(cal.G, np.float64)
     meta = {
         "n_sequences": n_use,
         "sequences_from": "rests",
         "kind": fs.kind,
         "residuals": options.residuals,
-        "g_sensitivity": bool(options.g_sensitivity),
+        "g_sensitivity": bool(fs.config.g_sensitivity),
+        **({} if fs.gsens_choice is None else {"g_sensitivity_choice": {  # JSON: no NaN (below 6 rests)
+            k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in fs.gsens_choice._asdict().items()}}),
         "acc_from": options.acc_from,
         "datasheet_prior": bool(options.datasheet_prior),
         "sigma_acc": float(fs.hp.sigma_acc),
@@ -380,12 +406,15 @@ def _field_held_out(fs: FieldSetup, options: OnlineOptions, log: Log | None) -> 
     if log:
         log(f"online held out: {F} rest folds, each initialised and streamed without its rests ...")
     try:
-        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals, fs.config,
-                                whole=fs.init)
+        folds = field.fold_fits(fs.rests.data, fs.batch, fs.dt, fs.hp, F, fs.kind, options.residuals,
+                                fs.config._replace(g_sensitivity=bool(options.g_sensitivity)), whole=fs.init,
+                                gsens_auto=fs.gsens_choice is not None)
     except ValueError as e:
         return {"error": str(e)}
     how = (f"{F} interleaved rest folds (the initial rest in none), each initialised from its own rests, "
            f"{folds.n_seq.min()}-{folds.n_seq.max()} sequences per fold")
+    if fs.gsens_choice is not None:
+        how += f"; the gyroscope's g-sensitivity chosen by {int(folds.gsens.sum())} of the {F} folds' own rests"
     skipped = np.flatnonzero(~folds.determined)
     if skipped.size:
         n_rests = int(np.isin(folds.rest_fold, skipped).sum())
