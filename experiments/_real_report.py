@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 TURNS_ONLY = "jaxcal multipos 9-param, gyro from the turns about the measured vertical alone (imucal's information, no labels)"
+FIELD_ROW = "jaxcal online between rests (the field path, `calibrate --method online`'s default; no labels)"
 PARTIAL = "jaxcal multipos --partial (acc: the combinations the poses determine; gyro left as recorded)"
 UNCHECKED = "jaxcal multipos 9-param, full fit without the observability check (what calibrate refuses to write)"
 
@@ -21,7 +22,7 @@ def paired_table(paired: dict, peer: str, acc_items: str, gyr_items: str) -> lis
     """Markdown of :func:`paired_with_peer`."""
     if not paired:
         return []
-    md = ["", f"Is a difference larger than the spread of the items? Paired comparison of each held-out jaxcal multipos row "
+    md = ["", f"Is a difference larger than the spread of the items? Paired comparison of each held-out jaxcal multipos row (and the field path where it is scored on the same items) "
           f"with **{peer}** (`jaxcal.compare.paired_comparison`; difference jaxcal - peer, 95 % bootstrap intervals over "
           "the items, pairs kept; 'tie' = the interval contains 0; sign test two-sided). Accelerometer items: "
           f"{acc_items}. Gyro items: {gyr_items}.", "",
@@ -241,6 +242,18 @@ def markdown(res: dict, pub: dict, quick: bool, pre: str) -> str:
             md += ["", f"Same information as imucal (faces and turns), no labels: jaxcal's gyro scores {to['gyr_mean_deg']:.3f} / {to['gyr_median_deg']:.3f} deg (mean / median) "
                    f"against imucal's {imc[0]['gyr_mean_deg']:.3f} / {imc[0]['gyr_median_deg']:.3f} deg; the rows above add "
                    "the motions between poses, which imucal cannot use (compare them in the paired table below)."]
+        fr = im_rows.get(FIELD_ROW)
+        if fr:
+            pf = im_info.get("paired", {}).get(FIELD_ROW, {})
+            pa, pg = pf.get("acc", {}), pf.get("gyr", {})
+            md += ["", f"Issue 26, like for like: `online` between rests (the field path, its defaults, no labels) on the same "
+                   f"time split as imucal. Accelerometer: RMS {fr['acc_rms_mg']:.3f} against {imc[0]['acc_rms_mg']:.3f} mg, "
+                   f"mean {fr['acc_mean_mg']:.4f} against {imc[0]['acc_mean_mg']:.4f} mg, paired verdict: "
+                   f"**{pa.get('verdict', '-')}**. Gyroscope over the motions: median {fr['gyr_median_deg']:.3f} against "
+                   f"{imc[0]['gyr_median_deg']:.3f} deg, mean {fr['gyr_mean_deg']:.3f} against {imc[0]['gyr_mean_deg']:.3f} "
+                   f"deg, paired verdicts (mean / median): **{pg.get('verdict', '-')} / {pg.get('verdict_median', '-')}**. "
+                   f"It never uses the turns; held out, they close to {fr['turn_mean_deg']:.2f} deg (mean), where imucal "
+                   f"fits them in-sample ({imc[0]['turn_mean_deg']:.3f})."]
         md += paired_table(im_info.get("paired", {}), "imucal", "the 12 scored half-faces",
                             "the motions between poses, the two folds averaged")
         pk = im_info["motion_peak_rate_dps"]

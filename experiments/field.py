@@ -25,6 +25,7 @@ from typing import Any
 import matplotlib.pyplot as plt
 import numpy as np
 
+from experiments._real_report import FIELD_ROW
 from jaxcal import methods
 from jaxcal.diagnose import diagnose_recording
 from jaxcal.methods.from_report import options_from_report
@@ -118,6 +119,7 @@ def run(quick: bool) -> dict[str, Any]:
             rows["online-thesis (sequences cut between rests)"] = _run("online-thesis", rec)
             rows["online-thesis, datasheet values removed"] = _run("online-thesis", _without_datasheet(rec))
         out["recordings"][name] = {"file": f"data/{path}", "rows": rows, "peer": _peer(real, real_key, peer_row),
+                                   "like_for_like": _peer(real, real_key, FIELD_ROW),
                                    "goal_mg_deg": goal, "duration_s": float(rec.t[-1] - rec.t[0]), "samples": rec.n}
     thesis = {}
     on_path = RESULTS / "online.json"
@@ -193,6 +195,14 @@ def markdown(res: dict[str, Any], figure: str) -> str:
                            f"{_better(ins['acc_rms_mg'], peer['acc_mg'])} than its {peer['acc_mg']:.3f} mg and "
                            f"{_better(ins['gyr_median_deg'], peer['gyr_deg'])} than its {peer['gyr_deg']:.3f} deg "
                            "(an in-sample figure flatters any fit; the held-out one above is what a user gets)")
+        lf = r.get("like_for_like") or {}
+        if peer.get("acc_mg") is not None and lf.get("acc_mg") is not None:
+            verdict.append(f"like for like (the peer's own held-out items: `online`'s field path on the same time split, "
+                           f"`results/real.json`'s \"{FIELD_ROW}\" row): {lf['acc_mg']:.3f} mg and {lf['gyr_deg']:.3f} deg "
+                           f"against its {peer['acc_mg']:.3f} mg and {peer['gyr_deg']:.3f} deg, point estimates "
+                           f"{'lower' if lf['acc_mg'] < peer['acc_mg'] else 'NOT lower'} and "
+                           f"{'lower' if lf['gyr_deg'] < peer['gyr_deg'] else 'NOT lower'}; whether a difference "
+                           "exceeds the items' spread is `results/real.md`'s paired table")
         pr = rows.get(PRIOR_ROW, {})
         if peer.get("acc_mg") is not None and pr.get("acc_mg") is not None:
             verdict.append(f"with `--datasheet-prior` {pr['acc_mg']:.3f} mg and {pr['gyr_deg']:.3f} deg: "

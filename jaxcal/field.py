@@ -53,7 +53,7 @@ from jaxcal.precision import float64
 from jaxcal.sensor import Diag, LinearCal
 
 __all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "GsensChoice", "carried_sigma", "choose_gsens", "compose",
-           "field_batch", "fit_field", "fold_fits", "rest_init", "sequence_weights"]
+           "field_batch", "fit_field", "fold_fits", "rest_init", "rest_noise", "sequence_weights"]
 
 RESIDUALS = ("rests", "all")
 
@@ -91,6 +91,20 @@ def rest_init(data: mp.MultiposData, acc_w: np.ndarray | None = None, gyr_w: np.
     f = mp.fit_prepared_jit(d, config, acc_w=aw, gyr_w=gw)
     return FieldInit(LinearCal(np.asarray(f.acc.A), np.asarray(f.acc.b)),
                      LinearCal(np.asarray(f.gyr.A), np.asarray(f.gyr.b)), np.asarray(f.gsens))
+
+
+def rest_noise(acc: np.ndarray, intervals: np.ndarray, cal: LinearCal) -> float:
+    """The accelerometer's noise at rest (g): each rest's per-axis standard deviation of the
+    calibrated output, averaged over axes and rests (the filter's ``sigma_acc`` between rests).
+
+    Args:
+        acc: (L, 3) raw accelerometer.
+        intervals: (P, 2) rest sample ranges ``[start, stop)``.
+        cal: the accelerometer's applied calibration (raw to g).
+    """
+    a = np.asarray(acc, np.float64)
+    A, b = np.asarray(cal.A, np.float64), np.asarray(cal.b, np.float64)
+    return float(np.mean([((a[s:e] - b) @ A.T).std(0).mean() for s, e in np.asarray(intervals, int)]))
 
 
 class GsensChoice(NamedTuple):

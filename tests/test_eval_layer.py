@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from jaxcal import multipos as mp
 from jaxcal.constants import G0
 from jaxcal.eval import checks, heldout, peers
-from jaxcal.eval.heldout import fair_data, fair_multipos, fixed_errors, online_fit, online_heldout
+from jaxcal.eval.heldout import fair_data, fair_field, fair_multipos, fixed_errors, online_fit, online_heldout
 from jaxcal.eval.scores import fair_row, paired_with_peer, score_cal, score_fixed, score_heldout, score_insample, summarise
 from jaxcal.recording import load_recording
 from jaxcal.sensor import Diag, LinearCal
@@ -246,6 +246,10 @@ def test_paired_with_peer_compares_held_out_multipos_rows_item_by_item():
     pair = lambda e: np.degrees(np.mean(np.reshape(e, (2, 6)), 0))  # noqa: E731
     two = paired_with_peer(rows, "peer", pair)["jaxcal multipos 9-param"]["gyr"]
     assert two["n"] == 4 and two["mean_diff"] == pytest.approx(-0.5)  # items 3 and 7 pair with 9 and 1
+    # ``also`` adds named rows after the multipos ones, whose bootstrap draws stay as they were
+    more = paired_with_peer(rows, "peer", also=("another method", "not a row"))
+    assert list(more) == ["jaxcal multipos 9-param", "jaxcal multipos worse", "another method"]
+    assert all(more[n] == out[n] for n in out) and more["another method"]["acc"]["verdict"] == "better"
 
 
 # ----------------------------------------------------------------------------- held-out runners
@@ -394,6 +398,29 @@ def test_fair_multipos_on_turns_alone_holds_every_motion_out():
     np.testing.assert_array_equal(np.isnan(eg), plan.across_turn)
     assert eg[9] == pytest.approx(alpha, rel=1e-6)  # measured 1.2e-13 relative
     assert np.nanmax(np.delete(eg, 9)) < 1e-6 and np.max(ek) < 1e-6 and np.max(ea) < 1e-9  # measured 1.5e-8 (arccos at 1), 2.0e-15, 5.6e-16
+
+
+def test_fair_field_recovers_the_simulated_calibration_and_scores_like_fixed_errors():
+    """The field path on one time fold of a simulated Ferraris session (known calibration, white
+    noise 4 / 2 LSB, seed 5) recovers the calibration: scored on the held-out halves, motions and
+    turns it never fitted (turns: never used), its errors stay near those of the truth itself on
+    the same noisy items. Measured (max): faces 0.061 mg (truth 0.036), motions 0.0087 deg
+    (truth 0.0089), turns 0.023 deg (truth 0.0052); the bounds are about 3x those. Spans across
+    a turn are NaN, as ``fixed_errors`` scores them."""
+    from jaxcal.methods.online import OnlineOptions, field_hp
+
+    t, f, w, bounds, _ = _ferraris()
+    rng = np.random.default_rng(5)
+    acc = _raw(ACC_DIAG, f) + rng.normal(0, 4, f.shape)
+    gyr = _raw(GYR_TRUTH, w) + rng.normal(0, 2, w.shape)
+    plan = _plan(0)
+    fit_d, score_d, known, _ = fair_data(t, acc, gyr, plan)
+    ea, eg, ek = fair_field(acc, gyr, fit_d, score_d, known, plan, 1 / FS, field_hp(OnlineOptions(), None))
+    ta, tg, tk = fixed_errors(ACC_DIAG, GYR_TRUTH, score_d, known, plan)
+    assert ea.shape == (6,) and eg.shape == (11,) and ek.shape == (3,)
+    np.testing.assert_array_equal(np.isnan(eg), plan.across_turn)
+    assert np.max(ta) * 1e3 < 0.05 and np.degrees(np.nanmax(tg)) < 0.01 and np.degrees(np.max(tk)) < 0.01  # the items' noise
+    assert np.max(ea) * 1e3 < 0.2 and np.degrees(np.nanmax(eg)) < 0.03 and np.degrees(np.max(ek)) < 0.07
 
 
 def test_fair_multipos_with_closed_turns_does_not_start_at_a_wrong_revolution_count():

@@ -15,13 +15,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcal import field
 from jaxcal import multipos as mp
 from jaxcal import online as onl
 from jaxcal.eval.scores import score_cal, summarise
 from jaxcal.precision import float64
 from jaxcal.sensor import Diag, LinearCal
 
-__all__ = ["stream_segments", "fold_errors", "online_fit", "online_heldout", "fair_data", "fair_multipos", "fixed_errors"]
+__all__ = ["stream_segments", "fold_errors", "online_fit", "online_heldout", "fair_data", "fair_multipos", "fixed_errors", "fair_field"]
 
 
 def stream_segments(acc: np.ndarray, gyr: np.ndarray, segments, dt: float, aspec: Diag | None, gspec: Diag | None,
@@ -186,7 +187,8 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
 
 
 @float64
-def fixed_errors(a_cal: LinearCal, g_cal: LinearCal, score_d, known, plan: mp.TimeSplit) -> tuple:
+def fixed_errors(a_cal: LinearCal, g_cal: LinearCal, score_d, known, plan: mp.TimeSplit,
+                 gsens: np.ndarray | None = None) -> tuple:
     """Errors ``(acc_err, gyr_err, turn_err)`` of a given calibration on a fold's scored sections:
     faces (acc), motions between poses (gyro; NaN for spans across a turn) and the turns' closure.
 
@@ -195,8 +197,46 @@ def fixed_errors(a_cal: LinearCal, g_cal: LinearCal, score_d, known, plan: mp.Ti
         score_d: the fold's scored sections (second item of :func:`fair_data`).
         known: the turns as closed rotations (third item of :func:`fair_data`).
         plan: the fold (:func:`jaxcal.multipos.time_split`).
+        gsens: the gyroscope's g-sensitivity ``G`` ((rad/s)/g), or ``None`` (zero).
     """
-    ea, eg = score_cal(a_cal, g_cal, score_d)
-    ek = np.asarray(mp.known_rotation_errors(jax.tree_util.tree_map(jnp.asarray, g_cal), jnp.zeros((3, 3)),
+    ea, eg = score_cal(a_cal, g_cal, score_d, gsens)
+    G = jnp.zeros((3, 3)) if gsens is None else jnp.asarray(gsens)
+    ek = np.asarray(mp.known_rotation_errors(jax.tree_util.tree_map(jnp.asarray, g_cal), G,
                                              jax.tree_util.tree_map(jnp.asarray, a_cal), jax.tree_util.tree_map(jnp.asarray, known)))
     return ea[plan.is_face], np.where(plan.across_turn, np.nan, eg), ek
+
+
+@float64
+def fair_field(acc: np.ndarray, gyr: np.ndarray, fit_d, score_d, known, plan: mp.TimeSplit, dt: float,
+               hp: onl.OnlineHP, kind: str = "diag", gsens_auto: bool = True) -> tuple:
+    """Held-out errors ``(acc_err, gyr_err, turn_err)`` of the field path (``online`` between rests,
+    :mod:`jaxcal.field`) on one time fold, scored as :func:`fixed_errors` scores a given calibration.
+
+    The fitted halves are the rests: the accelerometer from the faces' halves (the turns' rests repeat
+    their directions, as in :func:`fair_multipos`), the gyroscope from the gravity carried over every
+    motion between two halves that is not a turn; with ``gsens_auto`` the halves choose the gyro's
+    g-sensitivity (:func:`jaxcal.field.choose_gsens`); the filter then streams those motions with the
+    accelerometer residuals at the halves, its noise measured there. The scored halves lie inside the
+    streamed spans (a hold is still: their gyro integrates to nothing); their accelerometer is never
+    a residual.
+
+    Args:
+        acc, gyr: (N, 3) outputs of the whole session.
+        fit_d, score_d, known: from :func:`fair_data`.
+        plan: the time fold (:func:`jaxcal.multipos.time_split`).
+        dt: sample period (s).
+        hp: the filter's :class:`~jaxcal.online.OnlineHP` (e.g. ``methods.online.field_hp``); its
+            ``sigma_acc`` is replaced by the noise measured at the fitted halves.
+        kind: the filter's layout (``online``'s default between rests: ``"diag"``).
+        gsens_auto: let the fitted halves choose the gyro's g-sensitivity (``online``'s default).
+    """
+    use = (~np.asarray(plan.across_turn, bool)).astype(np.float64)
+    aw = np.asarray(plan.is_face, np.float64)
+    config = mp.MultiposConfig()
+    init = field.rest_init(fit_d, aw, use, config)
+    if gsens_auto and field.choose_gsens(fit_d, init.acc).chosen:
+        init = field.rest_init(fit_d, aw, use, config._replace(g_sensitivity=True))
+    hp = hp._replace(sigma_acc=field.rest_noise(acc, plan.fit_iv, init.acc))
+    cal = field.fit_field(field.field_batch(acc, gyr, plan.fit_iv, use > 0), init, dt, hp, kind, "rests",
+                          sigma_dir=field.carried_sigma(init, fit_d, use))
+    return fixed_errors(cal.acc, cal.gyr, score_d, known, plan, cal.G)

@@ -182,9 +182,9 @@ def fair_row(parts: list, scored: str) -> dict:
     return r
 
 
-def paired_with_peer(rows: dict, peer: str, gyr_items=None, seed: int = 100) -> dict:
-    """:func:`jaxcal.compare.paired_comparison` of every held-out jaxcal multipos row with the row
-    ``peer`` (same items).
+def paired_with_peer(rows: dict, peer: str, gyr_items=None, seed: int = 100, also: tuple[str, ...] = ()) -> dict:
+    """:func:`jaxcal.compare.paired_comparison` of every held-out jaxcal multipos row, and of the rows
+    named in ``also``, with the row ``peer`` (same items).
 
     Args:
         rows: score rows by name (rows whose name starts with ``jaxcal multipos`` and is not in-sample
@@ -192,13 +192,16 @@ def paired_with_peer(rows: dict, peer: str, gyr_items=None, seed: int = 100) -> 
         peer: name of the row to compare with.
         gyr_items: ``f(errors_rad) -> errors_deg`` giving the gyro items (e.g. two folds averaged);
             by default one item per scored transition. Items either row left unscored (NaN) are dropped.
-        seed: PRNG seed of the bootstrap (row ``k`` uses ``PRNGKey(seed + k)``).
+        seed: PRNG seed of the bootstrap (row ``k`` uses ``PRNGKey(seed + k)``; the ``also`` rows
+            come after the multipos rows, so adding one leaves their draws as they were).
+        also: names of further held-out rows to compare (e.g. another method's on the same items).
     """
     ref = rows[peer]
     items = gyr_items or (lambda e: np.degrees(np.asarray(e)))
     gp = items(ref["_gyr_err"])
     out = {}
-    for k, (n, r) in enumerate((n, r) for n, r in rows.items() if n.startswith("jaxcal multipos") and "in-sample" not in n.lower()):
+    names = [n for n in rows if n.startswith("jaxcal multipos") and "in-sample" not in n.lower()]
+    for k, (n, r) in enumerate((n, rows[n]) for n in names + [n for n in also if n in rows and n not in names]):
         ka, kg = jax.random.split(jax.random.PRNGKey(seed + k))
         gj = items(r["_gyr_err"])
         fin = np.isfinite(gp) & np.isfinite(gj)

@@ -40,7 +40,7 @@ from jaxcal.online import HOLD, OnlineHP, fit_online_recording
 from jaxcal.recording import PER_SAMPLE_FIELDS, Recording, sequence_slices
 from jaxcal.sensor import Diag, LinearCal
 
-__all__ = ["METHOD", "FieldSetup", "OnlineOptions", "RestSequences", "field_setup", "fit", "quality", "rest_seq_recording",
+__all__ = ["METHOD", "FieldSetup", "OnlineOptions", "RestSequences", "field_hp", "field_setup", "fit", "quality", "rest_seq_recording",
            "rest_sequences", "rest_spec"]
 
 
@@ -195,6 +195,19 @@ def _hp(options: OnlineOptions, sigma_acc: float | None) -> OnlineHP:
     return hp if sigma is None else hp._replace(sigma_acc=float(sigma))
 
 
+def field_hp(options: OnlineOptions, sigma_acc: float | None) -> OnlineHP:
+    """The filter's hyperparameters between rests (the field path): the options' values, the
+    accelerometer noise ``sigma_acc`` (g; the option's if given), and, with ``acc_from="rests"``
+    (the default), the accelerometer held at its fit to the rests (:data:`~jaxcal.online.HOLD`).
+
+    Args:
+        options: :class:`OnlineOptions`.
+        sigma_acc: the accelerometer's noise at the rests (g), e.g. :func:`jaxcal.field.rest_noise`.
+    """
+    hp = _hp(options, sigma_acc)
+    return hp._replace(acc_prior_factor=HOLD) if options.acc_from == "rests" else hp
+
+
 def _kind(options: OnlineOptions, segmented: bool) -> str:
     """The filter's layout: the option, else ``diag`` between rests and ``affine`` with ``seq`` ids."""
     return options.kind if options.kind is not None else ("diag" if segmented else "affine")
@@ -264,11 +277,7 @@ def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
         if choice.chosen:
             config = config._replace(g_sensitivity=True)
             init = field.rest_init(rests.data, config=config)
-    acc = np.asarray(rec.acc, np.float64)
-    noise = [((acc[a:b] - init.acc.b) @ init.acc.A.T).std(0).mean() for a, b in rests.intervals]
-    hp = _hp(options, float(np.mean(noise)))
-    if options.acc_from == "rests":
-        hp = hp._replace(acc_prior_factor=HOLD)
+    hp = field_hp(options, field.rest_noise(rec.acc, rests.intervals, init.acc))
     return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True), init, choice)
 
 
