@@ -766,7 +766,7 @@ def clock_windows_run(k: int = 4) -> dict:
 def clock_windows_markdown(res: dict, broad: dict | None = None) -> str:
     """The clock-windows section from :func:`clock_windows_run`'s result; ``broad``: the skew part's
     BROAD rows (``align``'s single skew and qmt's), compared with the skew the windows support."""
-    from jaxcal.diagnose.clock_check import line_check
+    from jaxcal.diagnose.clock_check import line_check, scaled_half95
 
     lines = {name: line_check(*(np.array([w[k] for w in r["windows"]]) for k in ("epoch_s", "tau", "tau_stderr")))
              for name, r in res.items()}  # from the stored windows: the same numbers as r["line"], and its newer fields
@@ -804,7 +804,7 @@ def clock_windows_markdown(res: dict, broad: dict | None = None) -> str:
             b, c = broad.get(name), lines[name]
             if b is None:
                 continue
-            half = c.slope_half95_ppm / c.slope_se_scaled_ppm * b["ppm_se"] * c.scale  # the same quantile, align's se
+            half = scaled_half95(b["ppm_se"], c)  # the same scale factor and quantile on align's own se
             inside = [abs(b["ppm_qmt"] - m) <= h for m, h in ((c.slope_ppm, c.slope_half95_ppm), (b["ppm"], half))]
             L.append(f"| {name} | {c.scale:.1f} | {c.slope_ppm:+.1f} [{c.slope_ppm - c.slope_half95_ppm:+.1f}, "
                      f"{c.slope_ppm + c.slope_half95_ppm:+.1f}] | {b['ppm']:+.1f} [{b['ppm'] - half:+.1f}, {b['ppm'] + half:+.1f}] | "

@@ -102,6 +102,8 @@ def test_cli_align_writes_the_conventions_files(rig, tmp_path, monkeypatch, caps
     assert "one clock skew holds" in capsys.readouterr().err
     a = json.loads((tmp_path / "al" / "align.json").read_text())
     assert len(a["clock_check"]["windows"]) == 3 and a["clock_check"]["line"]["slope_ppm"] == pytest.approx(2.0)
+    # one line holds the steady windows (scale 1), so the widened interval is the single skew's own 1.96 se
+    assert a["clock_check"]["skew_half95_scaled_ppm"] == pytest.approx(1.959964 * a["stderr"]["clock_skew"], rel=1e-6)
     for k in ("tau", "R_ref_imu", "r", "stderr"):
         assert k in a
     assert set(a["stderr"]) >= {"tau", "r"}

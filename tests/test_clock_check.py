@@ -88,3 +88,5 @@ def test_the_scaled_interval_covers_lines_whose_offsets_scatter_more_than_stated
     x = c[0]  # the closed forms
     assert x.scale == pytest.approx(max(1.0, np.sqrt(x.chi2 / 2)), rel=1e-12)
     assert x.slope_se_scaled_ppm == pytest.approx(x.slope_se_ppm * x.scale, rel=1e-12)
+    q = 4.302652729911275 if x.scale > 1 else 1.959963984540054  # t(0.975, 2 dof), normal
+    assert clock_check.scaled_half95(0.5, x) == pytest.approx(0.5 * q * x.scale, rel=1e-9)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -146,10 +147,11 @@ def _add_align(p: argparse.ArgumentParser) -> None:
                         "one clock skew holds the recording (align.json clock_check; about one more alignment's time)")
 
 
-def _clock_check(rec: Recording, args: argparse.Namespace) -> dict:
+def _clock_check(rec: Recording, args: argparse.Namespace, skew_se: float | None) -> dict:
     """``--clock-windows K``: :func:`jaxcal.diagnose.clock_check.clock_windows`, and one line on stderr
-    (a warning where one offset line does not hold the windows)."""
-    from jaxcal.diagnose.clock_check import clock_windows
+    (a warning where one offset line does not hold the windows, with the single skew's interval
+    widened by their scatter, ``skew_half95_scaled_ppm``: :func:`~jaxcal.diagnose.clock_check.scaled_half95`)."""
+    from jaxcal.diagnose.clock_check import LineCheck, clock_windows, scaled_half95
 
     print(f"{PROG}: aligning {args.clock_windows} windows of {args.recording} (does one clock skew hold?) ...", file=sys.stderr)
     try:
@@ -158,9 +160,13 @@ def _clock_check(rec: Recording, args: argparse.Namespace) -> dict:
         raise UsageError(f"{args.recording}: --clock-windows {args.clock_windows}: {e}") from None
     c = out["line"]
     how = f"chi-square {c['chi2']:.1f} on {c['dof']} dof, p {c['p']:.2g}; the windows' skew {c['slope_ppm']:+.2f} ppm"
+    widened = ""
+    if skew_se is not None and math.isfinite(skew_se):
+        out["skew_half95_scaled_ppm"] = scaled_half95(skew_se, LineCheck(**c))
+        widened = f"; with their scatter its 95 % interval is +- {out['skew_half95_scaled_ppm']:.2f} ppm, not +- {1.96 * skew_se:.2f}"
     if c["p"] < 0.01:
         print(f"{PROG}: warning: one clock skew does not hold {args.recording}: the offsets of {args.clock_windows} windows "
-              f"are not on one line ({how}); align.json's single skew does not describe it", file=sys.stderr)
+              f"are not on one line ({how}); align.json's single skew does not describe it{widened}", file=sys.stderr)
     else:
         print(f"{PROG}: one clock skew holds: the windows' offsets lie on one line ({how})", file=sys.stderr)
     return out
@@ -187,7 +193,7 @@ def _run_align(args: argparse.Namespace) -> int:
         if bad:
             raise UsageError(f"{args.recording}: {bad[0]}; nothing written")
         if args.clock_windows is not None:
-            res = res._replace(align={**res.align, "clock_check": _clock_check(rec, args)})
+            res = res._replace(align={**res.align, "clock_check": _clock_check(rec, args, res.align["stderr"].get("clock_skew"))})
         al.write_alignment(d, res)
     a = res.align
     r = "-" if a["r"] is None else "[" + ", ".join(f"{1e3 * v:.1f}" for v in a["r"]) + "] mm"

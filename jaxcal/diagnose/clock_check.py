@@ -21,7 +21,7 @@ from jaxcal.diagnose.align import align_recording
 from jaxcal.diagnose.system import SelectConfig
 from jaxcal.recording import Recording, take_rows
 
-__all__ = ["LineCheck", "clock_windows", "line_check"]
+__all__ = ["LineCheck", "clock_windows", "line_check", "scaled_half95"]
 
 
 class LineCheck(NamedTuple):
@@ -79,6 +79,19 @@ def line_check(epoch_s: np.ndarray, tau_s: np.ndarray, tau_se_s: np.ndarray) -> 
     q = float(t_dist.ppf(0.975, dof)) if scale > 1.0 else 1.959963984540054
     return LineCheck(float(beta[1] * 1e6), se_ppm, chi2, dof, float(chi2_dist.sf(chi2, dof)) if dof > 0 else float("nan"),
                      scale, se_ppm * scale, q * se_ppm * scale)
+
+
+def scaled_half95(se_ppm: float, line: LineCheck) -> float:
+    """The half-width (ppm) of a skew's 95 % interval with the windows' scatter taken in: its own
+    standard error ``se_ppm`` (e.g. ``align.json``'s ``stderr.clock_skew``) times the line's scale
+    factor and quantile (:attr:`LineCheck.slope_half95_ppm` over :attr:`LineCheck.slope_se_ppm`);
+    ``1.96 se_ppm`` where one line holds the windows.
+
+    Args:
+        se_ppm: the skew's standard error (ppm).
+        line: :func:`line_check` of the windows' offsets.
+    """
+    return float(se_ppm) * line.slope_half95_ppm / line.slope_se_ppm
 
 
 def clock_windows(rec: Recording, k: int = 4, pose_sigma: float | None = None,
