@@ -53,7 +53,7 @@ from jaxcal.precision import float64
 from jaxcal.sensor import Diag, LinearCal
 
 __all__ = ["RESIDUALS", "FieldBatch", "FieldInit", "FoldFits", "GsensChoice", "carried_sigma", "choose_gsens", "compose",
-           "field_batch", "fit_field", "fold_fits", "rest_init", "rest_noise", "sequence_weights"]
+           "field_batch", "fit_field", "fold_fits", "rest_init", "rest_init_chosen", "rest_noise", "sequence_weights"]
 
 RESIDUALS = ("rests", "all")
 
@@ -169,6 +169,28 @@ def choose_gsens(data: mp.MultiposData, acc: LinearCal, acc_w: np.ndarray | None
     e0, e1 = w * err[0], w * err[1]
     se1 = float(e1.std(ddof=1) / np.sqrt(P))
     return GsensChoice(bool(e1.mean() + se1 < e0.mean()), float(e0.mean()), float(e1.mean()), se1, P)
+
+
+def rest_init_chosen(data: mp.MultiposData, acc_w: np.ndarray | None = None, gyr_w: np.ndarray | None = None,
+                     config: mp.MultiposConfig = mp.MultiposConfig(), auto: bool = True,
+                     choose_w: np.ndarray | None = None) -> tuple[FieldInit, GsensChoice | None]:
+    """:func:`rest_init`, with the gyroscope's g-sensitivity chosen by the rests (:func:`choose_gsens`)
+    where ``config`` leaves it out and ``auto`` is on: fitted without it, asked, and fitted again
+    with it where the rests choose it. Returns the initial calibration and the choice (``None``
+    where none was asked).
+
+    Args:
+        data, acc_w, gyr_w, config: as :func:`rest_init`.
+        auto: let the rests choose the g-sensitivity.
+        choose_w: (P,) 0/1 per rest taking part in the choice (``None``: ``acc_w``).
+    """
+    init = rest_init(data, acc_w, gyr_w, config)
+    if not auto or config.g_sensitivity:
+        return init, None
+    choice = choose_gsens(data, init.acc, acc_w if choose_w is None else choose_w)
+    if choice.chosen:
+        init = rest_init(data, acc_w, gyr_w, config._replace(g_sensitivity=True))
+    return init, choice
 
 
 class FieldBatch(NamedTuple):
@@ -399,12 +421,8 @@ def fold_fits(data: mp.MultiposData, batch: FieldBatch, dt: float, hp: OnlineHP,
         mw = (both & seg_ok).astype(np.float64)
         if mw.sum() < 2:
             raise ValueError(f"fold {k + 1} of {F} keeps {int(mw.sum())} motions; too few rests for held-out folds")
-        cfg = config
-        init = rest_init(data, aw, mw, cfg)
-        if gsens_auto and not cfg.g_sensitivity and choose_gsens(data, init.acc, aw).chosen:
-            cfg = config._replace(g_sensitivity=True)
-            init = rest_init(data, aw, mw, cfg)
-        gs.append(bool(cfg.g_sensitivity))
+        init, choice = rest_init_chosen(data, aw, mw, config, gsens_auto)
+        gs.append(bool(config.g_sensitivity) or (choice is not None and choice.chosen))
         inits.append(init)
         ins.append(_inputs(batch, init, hp, residuals, both.astype(np.float64), carried_sigma(init, data, mw)))
         n_seq.append(int(mw.sum()))

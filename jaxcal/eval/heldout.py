@@ -232,10 +232,7 @@ def fair_field(acc: np.ndarray, gyr: np.ndarray, fit_d, score_d, known, plan: mp
     """
     use = (~np.asarray(plan.across_turn, bool)).astype(np.float64)
     aw = np.asarray(plan.is_face, np.float64)
-    config = mp.MultiposConfig()
-    init = field.rest_init(fit_d, aw, use, config)
-    if gsens_auto and field.choose_gsens(fit_d, init.acc).chosen:
-        init = field.rest_init(fit_d, aw, use, config._replace(g_sensitivity=True))
+    init, _ = field.rest_init_chosen(fit_d, aw, use, mp.MultiposConfig(), gsens_auto, choose_w=np.ones(len(aw)))  # every half chooses
     hp = hp._replace(sigma_acc=field.rest_noise(acc, plan.fit_iv, init.acc))
     cal = field.fit_field(field.field_batch(acc, gyr, plan.fit_iv, use > 0), init, dt, hp, kind, "rests",
                           sigma_dir=field.carried_sigma(init, fit_d, use))

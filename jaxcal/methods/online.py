@@ -270,13 +270,9 @@ def field_setup(rec: Recording, options: OnlineOptions) -> FieldSetup:
         batch = field.field_batch(rec.acc, rec.gyr, rests.intervals, rests.usable)
     except ValueError as e:
         raise ModelError(f"online: {e}") from None
-    init = field.rest_init(rests.data, config=config)
-    choice = None
-    if options.g_sensitivity_auto and not options.g_sensitivity:
-        choice = field.choose_gsens(rests.data, init.acc)
-        if choice.chosen:
-            config = config._replace(g_sensitivity=True)
-            init = field.rest_init(rests.data, config=config)
+    init, choice = field.rest_init_chosen(rests.data, config=config, auto=options.g_sensitivity_auto)
+    if choice is not None and choice.chosen:
+        config = config._replace(g_sensitivity=True)
     hp = field_hp(options, field.rest_noise(rec.acc, rests.intervals, init.acc))
     return FieldSetup(rests, batch, config, hp, recording_dt(rec), _kind(options, True), init, choice)
 
