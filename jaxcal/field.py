@@ -269,7 +269,7 @@ def carried_sigma(init: FieldInit, data: mp.MultiposData, motion_w: np.ndarray) 
     direction (Xsens: ~0.5 deg, against ~0.002 deg of accelerometer noise in a rest's mean)."""
     d = jax.tree_util.tree_map(jnp.asarray, data)
     a, g = (LinearCal(jnp.asarray(c.A, jnp.float64), jnp.asarray(c.b, jnp.float64)) for c in init[:2])
-    ang = np.asarray(mp.gyro_angle_errors(g, jnp.asarray(init.G, jnp.float64), a, d))
+    ang = np.asarray(mp.gyro_angle_errors_jit(g, jnp.asarray(init.G, jnp.float64), a, d))
     ok = (np.asarray(motion_w) > 0) & np.asarray(data.seg_ok, bool) & np.isfinite(ang)
     return float(np.sqrt(np.mean(ang[ok] ** 2) / 2.0)) if ok.any() else 0.0
 

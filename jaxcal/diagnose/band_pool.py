@@ -226,7 +226,9 @@ def pool_named(kind: str, sensor: str, inp: E.Inputs, rows: np.ndarray, fit: Ref
     names = [n for n in order if n in pool]
     if not names:
         return fit, {}
-    jb, jt = E.regressors(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp))
+    # the compiled linearisation of the selection stage (its residual is not used here: the refit's is)
+    jb, jt, _ = E.linearized(kind, sensor, jnp.asarray(fit.beta, jnp.float64), jnp.asarray(fit.theta, jnp.float64), E.as_jax(inp),
+                             jnp.zeros(np.shape(fit.resid), jnp.float64))
     active = np.flatnonzero(E.effect_mask(sensor, order) > 0)
     X = np.concatenate([np.asarray(jb), np.asarray(jt)[:, :, active]], axis=2)
     z = np.asarray(fit.resid, float)

@@ -72,6 +72,8 @@ __all__ = [
     "identity_beta",
     "model_output",
     "regressors",
+    "linearized",
+    "linearized_baseline",
 ]
 
 OFFDIAG = V.OFFDIAG  # off-diagonal (row, col) entries of the misalignment matrix, in parameter order
@@ -349,3 +351,46 @@ def regressors(kind: str, sensor: str, beta, theta, inp: Inputs) -> tuple[Float[
     jb = jax.jacfwd(lambda b: model_output(kind, sensor, b, theta, inp))(beta)
     jt = jax.jacfwd(lambda th: model_output(kind, sensor, beta, th, inp))(theta)
     return jb, jt
+
+
+def _linearized(
+    kind: str, sensor: str, beta, theta, inp: Inputs, y
+) -> tuple[Float[Array, "N 3 B"], Float[Array, "N 3 Q"], Float[Array, "N 3"]]:
+    """:func:`regressors` and the residual ``y - model_output`` at ``(beta, theta)``; compiled as
+    :data:`linearized` (``kind`` and ``sensor`` static), one executable per recording length serves
+    every stage that linearises, refits or pools. Evaluated op by op instead, the resampling chain
+    of :func:`effects_forward` took about 0.7 s a call on a 6000-sample recording.
+
+    Args:
+        kind: ``"diag"`` or ``"affine"`` (static).
+        sensor: ``"acc"`` or ``"gyr"`` (static).
+        beta: (B,) baseline parameters.
+        theta: (Q,) effect parameters.
+        inp: reference signals.
+        y: (N, 3) sensor output (physical units).
+    """
+    jb, jt = regressors(kind, sensor, beta, theta, inp)
+    return jb, jt, y - model_output(kind, sensor, beta, theta, inp)
+
+
+def _linearized_baseline(kind: str, sensor: str, beta, theta, inp: Inputs, y) -> tuple[Float[Array, "N 3 B"], Float[Array, "N 3"]]:
+    """:func:`_linearized` with the baseline's columns only (``theta`` held fixed):
+    ``(J_beta, y - model_output)``; compiled as :data:`linearized_baseline`.
+
+    Args:
+        kind: ``"diag"`` or ``"affine"`` (static).
+        sensor: ``"acc"`` or ``"gyr"`` (static).
+        beta: (B,) baseline parameters.
+        theta: (Q,) effect parameters.
+        inp: reference signals.
+        y: (N, 3) sensor output (physical units).
+    """
+    u = effects_forward(sensor, theta, inp)
+    jb = jax.jacfwd(lambda b: baseline_apply(kind, b, u))(beta)
+    return jb, y - baseline_apply(kind, beta, u)
+
+
+#: :func:`_linearized` compiled (``kind``, ``sensor`` static): ``(J_beta, J_theta, y - model_output)``.
+linearized = jax.jit(_linearized, static_argnames=("kind", "sensor"))
+#: :func:`_linearized_baseline` compiled (``kind``, ``sensor`` static): ``(J_beta, y - model_output)``.
+linearized_baseline = jax.jit(_linearized_baseline, static_argnames=("kind", "sensor"))

@@ -205,7 +205,8 @@ def refit(kind: str, sensor: str, beta0, theta0, names: list[str], inp: E.Inputs
                                                              max_steps=max_steps)
     phi, jac, hess, rr = (np.asarray(a) for a in (phi, jac, hess, rr))
     beta, theta = phi[:nb], phi[nb:] * mask
-    resid = np.asarray(y - E.model_output(kind, sensor, jnp.asarray(beta), jnp.asarray(theta), jinp))
+    _, resid = E.linearized_baseline(kind, sensor, jnp.asarray(beta), jnp.asarray(theta), jinp, jnp.asarray(y, jnp.float64))
+    resid = np.asarray(resid)
     n3 = 3 * len(y)
     active = np.concatenate([np.ones(nb, bool), mask > 0])
     ja = jac[:n3][:, active]

@@ -25,10 +25,9 @@ matrices per contiguous time block (default 8 blocks).
 
 from __future__ import annotations
 
-from functools import lru_cache, partial
+from functools import lru_cache
 from typing import NamedTuple
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy import optimize, stats
@@ -71,13 +70,6 @@ __all__ = [
 # ----------------------------------------------------------------------------- linearisation
 
 
-@partial(jax.jit, static_argnames=("kind", "sensor"))
-def _linearize(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
-    jb, jt = E.regressors(kind, sensor, beta, theta, inp)
-    z = y - E.model_output(kind, sensor, beta, theta, inp)
-    return jb, jt, z
-
-
 @float64
 def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
     """``(X (N, 3, B+P), z (N, 3))``: regressors [baseline | effects] and residual at (beta, theta).
@@ -89,15 +81,8 @@ def linearize(kind: str, sd: SensorData, beta: np.ndarray, theta: np.ndarray):
         theta: (P,) effect parameters (:data:`~jaxcal.diagnose.effects.LAYOUT`).
     """
     inp = E.as_jax(sd.inp)
-    jb, jt, z = _linearize(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
+    jb, jt, z = E.linearized(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
     return np.concatenate([np.asarray(jb), np.asarray(jt)], axis=2), np.asarray(z)
-
-
-@partial(jax.jit, static_argnames=("kind", "sensor"))
-def _linearize_base(kind: str, sensor: str, beta, theta, inp: E.Inputs, y):
-    u = E.effects_forward(sensor, theta, inp)
-    jb = jax.jacfwd(lambda b: E.baseline_apply(kind, b, u))(beta)
-    return jb, y - E.baseline_apply(kind, beta, u)
 
 
 @float64
@@ -111,7 +96,7 @@ def linearize_baseline(kind: str, sd: SensorData, beta: np.ndarray, theta: np.nd
         theta: (P,) effect parameters, held fixed.
     """
     inp = E.as_jax(sd.inp)
-    jb, z = _linearize_base(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
+    jb, z = E.linearized_baseline(kind, sd.sensor, jnp.asarray(beta, jnp.float64), jnp.asarray(theta, jnp.float64), inp, jnp.asarray(sd.y, jnp.float64))
     return np.asarray(jb), np.asarray(z)
 
 

@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -139,6 +141,22 @@ def fair_data(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, plan: mp.TimeSpli
     return fit_d, score_d, known, turns
 
 
+@partial(jax.jit, static_argnames=("config", "mode"))
+def _gyro_fold_errors(d, sd, kn, tv, aw, gw, kw, config: mp.MultiposConfig, mode: str) -> tuple:
+    """:func:`fair_multipos`'s gyro folds in one vmapped fit, scored: ``(acc_err (F, P), gyr_err (F, J),
+    turn_err (F, K))`` on the scored sections ``sd``. The data are arguments, not closure constants:
+    one compilation per shape, config and mode, not one per call (a closure compiled the imucal
+    session's folds in about 10 s each time)."""
+
+    def one(g, k):
+        f = mp.fit_prepared(d, config, acc_w=aw, gyr_w=g, known=kn if mode == "closed" else None, known_w=k,
+                            turns=tv if mode == "vertical" else None, turns_w=k)
+        return (mp.acc_norm_errors(f.acc, sd.pose_acc), mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, sd),
+                mp.known_rotation_errors(f.gyr, f.gsens, f.acc, kn))
+
+    return jax.vmap(one)(gw, kw)
+
+
 @float64
 def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.MultiposConfig, mode: str,
                   motions: bool = True) -> tuple:
@@ -163,20 +181,9 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
     M = int((scored >= 0).sum())
     if not motions:  # one fit on every turn and no motion holds out every motion at once
         gw, kw = np.zeros((1, gw.shape[1])), np.ones((1, kw.shape[1]))
-    aw = plan.is_face.astype(float)
     d, sd, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (fit_d, score_d, known, turns))
-
-    @jax.jit
-    def run(gw, kw):
-        def one(g, k):
-            f = mp.fit_prepared(d, config, acc_w=jnp.asarray(aw), gyr_w=g,
-                                known=kn if mode == "closed" else None, known_w=k,
-                                turns=tv if mode == "vertical" else None, turns_w=k)
-            return (mp.acc_norm_errors(f.acc, sd.pose_acc), mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, sd),
-                    mp.known_rotation_errors(f.gyr, f.gsens, f.acc, kn))
-        return jax.vmap(one)(gw, kw)
-
-    ea, eg, ek = (np.asarray(x) for x in run(jnp.asarray(gw), jnp.asarray(kw)))
+    aw = jnp.asarray(plan.is_face.astype(float))
+    ea, eg, ek = (np.asarray(x) for x in _gyro_fold_errors(d, sd, kn, tv, aw, jnp.asarray(gw), jnp.asarray(kw), config, mode))
     eg_out = np.full(len(plan.spans), np.nan)
     if not motions:
         eg_out[scored[:M]] = eg[0, scored[:M]]

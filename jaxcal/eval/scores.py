@@ -124,7 +124,7 @@ def score_cal(acc: LinearCal, gyr: LinearCal, data: mp.MultiposData,
     g = jax.tree_util.tree_map(lambda x: jnp.asarray(x, jnp.float64), gyr)
     gs = jnp.zeros((3, 3)) if G is None else jnp.asarray(G, jnp.float64)
     ea = np.asarray(mp.acc_norm_errors(a, d.pose_acc))
-    eg = np.asarray(mp.gyro_angle_errors(g, gs, a, d))
+    eg = np.asarray(mp.gyro_angle_errors_jit(g, gs, a, d))
     return ea, np.where(np.asarray(data.seg_ok, bool), eg, np.nan)
 
 
@@ -161,7 +161,7 @@ def score_insample(data: mp.MultiposData, config: mp.MultiposConfig) -> dict:
     d = jax.tree_util.tree_map(jnp.asarray, data)
     fit = mp.fit_prepared_jit(d, config)
     ea = np.asarray(mp.acc_norm_errors(fit.acc, d.pose_acc))
-    eg = np.asarray(mp.gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))
+    eg = np.asarray(mp.gyro_angle_errors_jit(fit.gyr, fit.gsens, fit.acc, d))
     return summarise(ea, np.where(np.asarray(data.seg_ok), eg, np.nan), "IN-SAMPLE (fitted on all poses)")
 
 

@@ -82,6 +82,7 @@ from jaxcal.multipos.gyro import (
     block_rotvecs,
     carry_rotation,
     gyro_angle_errors,
+    gyro_angle_errors_jit,
     known_rotation_errors,
     rest_gsens,
     vertical_turn_errors,
@@ -112,7 +113,7 @@ __all__ = [
     # what the poses determine
     "Observability", "observability", "check_observable",
     # scores
-    "acc_norm_errors", "gyro_angle_errors", "known_rotation_errors", "vertical_turn_errors",
+    "acc_norm_errors", "gyro_angle_errors", "gyro_angle_errors_jit", "known_rotation_errors", "vertical_turn_errors",
     "block_rotvecs", "carry_rotation",
     # held-out
     "HeldOut", "fold_batch", "fold_ids", "jackknife_sd", "leave_poses_out",

@@ -17,7 +17,7 @@ import numpy as np
 from jaxcal.multipos.acc import acc_norm_errors, fit_acc_determined, fit_acc_jit
 from jaxcal.multipos.data import OBSERVABLE_TOL, MultiposData, VerticalTurns, prepare, turns_from_times
 from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_prepared_numpy
-from jaxcal.multipos.gyro import gyro_angle_errors, vertical_turn_errors
+from jaxcal.multipos.gyro import gyro_angle_errors_jit, vertical_turn_errors
 from jaxcal.multipos.observe import Observability, check_observable, observability
 from jaxcal.precision import float64
 from jaxcal.sensor import LinearCal
@@ -216,7 +216,7 @@ def fit_summary(data: MultiposData, fit: MultiposFit, turns: VerticalTurns | Non
     obs = observability(data, fit.acc, fit.gyr, turns=turns) if obs is None else obs
     d, fit = (jax.tree_util.tree_map(jnp.asarray, x) for x in (data, fit))
     ea = np.asarray(acc_norm_errors(fit.acc, d.pose_acc))
-    eg = np.asarray(gyro_angle_errors(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
+    eg = np.asarray(gyro_angle_errors_jit(fit.gyr, fit.gsens, fit.acc, d))[np.asarray(data.seg_ok)]
     et = None if turns is None else np.asarray(vertical_turn_errors(
         fit.gyr, fit.gsens, fit.acc, jax.tree_util.tree_map(jnp.asarray, turns)))
     out = {"n_poses": int(len(ea)), "n_transitions": int(len(eg)), "acc_rms_mg": float(1e3 * np.sqrt(np.mean(ea**2))),

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
@@ -32,6 +33,7 @@ __all__ = [
     "GyroArgs",
     "gyr_residuals",
     "gyro_angle_errors",
+    "gyro_angle_errors_jit",
     "known_rotation_errors",
 ]
 
@@ -278,6 +280,11 @@ def gyro_angle_errors(
     pred = jnp.einsum("jba,jb->ja", r, u[:-1])
     c = jnp.sum(pred * u[1:], -1) / jnp.linalg.norm(pred, axis=-1)
     return jnp.arccos(jnp.clip(c, -1.0, 1.0))
+
+
+#: :func:`gyro_angle_errors` compiled, for callers outside a trace (scores, rest detection, the field
+#: path's carried sigma): op by op it took about 90 ms a call on the MPU-6050's 10 rests.
+gyro_angle_errors_jit = jax.jit(gyro_angle_errors)
 
 
 def known_rotation_errors(
