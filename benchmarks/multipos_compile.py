@@ -1,0 +1,104 @@
+"""One multipos fit: compile and run time with and without XLA's backend optimisation passes.
+
+    python -m benchmarks.multipos_compile [--reps N] [--json OUT]
+
+On the Xsens multi-position session (``data/imu_tk_xsens_multipos``, 40 poses), this compiles, in
+one run with the persistent cache off, :func:`jaxcal.multipos.fit_prepared` (one fit, what
+``calibrate --method multipos``, the field path's rest fits and the in-sample scores run) and
+:func:`jaxcal.multipos.heldout.fold_scores` (the leave-one-pose-out loop, one fold after another)
+twice each: with XLA's defaults and with :data:`jaxcal.multipos.fit.FIT_COMPILER_OPTIONS`. Each
+compiled function then runs ``reps`` times (median, each ended by ``block_until_ready``); the
+largest difference between the two results is reported. A single fit runs in milliseconds and
+compiles in seconds, so fewer optimisation passes pay there; the fold loop runs the fit 40 times
+and keeps them. Writes ``results/multipos_compile.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from jaxcal import multipos as mp  # noqa: E402
+from jaxcal.methods import multipos as mm  # noqa: E402
+from jaxcal.multipos.fit import FIT_COMPILER_OPTIONS, fit_prepared  # noqa: E402
+from jaxcal.multipos.heldout import fold_scores  # noqa: E402
+from jaxcal.recording import load_recording  # noqa: E402
+
+XSENS = ROOT / "data" / "imu_tk_xsens_multipos" / "xsens.npz"
+
+
+def _timed(lowered, args: tuple, options: dict, reps: int) -> tuple[dict, list[np.ndarray]]:
+    """Compile ``lowered`` with ``options``, run it ``reps`` times: times and the result's leaves."""
+    t0 = time.perf_counter()
+    compiled = lowered.compile(compiler_options=options)
+    compile_s = time.perf_counter() - t0
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        res = jax.block_until_ready(compiled(*args))
+        ts.append(time.perf_counter() - t0)
+    return {"compile_s": compile_s, "run_s": statistics.median(ts), "run_s_all": ts}, [np.asarray(x) for x in jax.tree_util.tree_leaves(res)]
+
+
+def _max_diff(a: list[np.ndarray], b: list[np.ndarray]) -> float:
+    return max(float(np.nanmax(np.abs(x - y))) if x.size else 0.0 for x, y in zip(a, b, strict=True))
+
+
+def measure(reps: int) -> dict:
+    """Compile and run times of one fit and of the fold loop, XLA's defaults against the fit's options."""
+    rec = load_recording(XSENS)
+    opts = mm.MultiposOptions()
+    config, det = mm.multipos_config(rec, opts), mm.detect_options(rec, opts)
+    _, iv, _ = mp.detect_and_fit(rec.t, rec.acc, rec.gyr, config, detect=det, check=False)
+    data = mp.prepare(rec.t, rec.acc, rec.gyr, iv, gyr_limit=det.gyr_limit, midpoint=config.midpoint)
+    P = data.pose_acc.shape[0]
+    out: dict = {"recording": str(XSENS.relative_to(ROOT)), "poses": P, "repetitions": reps, "options": FIT_COMPILER_OPTIONS}
+    with jax.enable_x64(True):
+        d = jax.tree_util.tree_map(jnp.asarray, data)
+        aw = jnp.asarray(1.0 - np.eye(P))
+        gw = jnp.asarray(1.0 - np.eye(P)[:, : P - 1])
+        fit = jax.jit(fit_prepared, static_argnames=("config",)).lower(d, config)
+        folds = fold_scores.lower(d, config, aw, gw, 1)
+        for name, lowered, args in (("one_fit", fit, (d,)), ("fold_loop", folds, (d, aw, gw))):
+            base, r0 = _timed(lowered, args, {}, reps)
+            fast, r1 = _timed(lowered, args, FIT_COMPILER_OPTIONS, reps)
+            out[name] = {"defaults": base, "fit_options": fast, "max_abs_diff": _max_diff(r0, r1),
+                         "compile_ratio": base["compile_s"] / fast["compile_s"], "run_ratio": fast["run_s"] / base["run_s"],
+                         "total_saved_s": base["compile_s"] + base["run_s"] - fast["compile_s"] - fast["run_s"]}
+    out["load_average_at_end"] = list(os.getloadavg())
+    out["jax_version"] = jax.__version__
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--reps", type=int, default=5, help="timed runs of each compiled function (median reported)")
+    ap.add_argument("--json", type=Path, default=ROOT / "results" / "multipos_compile.json", help="JSON output path")
+    a = ap.parse_args()
+    jax.config.update("jax_enable_compilation_cache", False)  # real compile times
+    out = measure(a.reps)
+    a.json.parent.mkdir(parents=True, exist_ok=True)
+    a.json.write_text(json.dumps(out, indent=1) + "\n")
+    for name in ("one_fit", "fold_loop"):
+        r = out[name]
+        b, f = r["defaults"], r["fit_options"]
+        print(f"{name}: compile {b['compile_s']:.2f} -> {f['compile_s']:.2f} s, run {1e3 * b['run_s']:.1f} -> "
+              f"{1e3 * f['run_s']:.1f} ms, saved {r['total_saved_s']:+.2f} s, max difference {r['max_abs_diff']:.2g}")
+    print(f"{out['poses']} poses; wrote {a.json}")
+
+
+if __name__ == "__main__":
+    main()
