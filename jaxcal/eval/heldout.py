@@ -141,12 +141,13 @@ def fair_data(t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, plan: mp.TimeSpli
     return fit_d, score_d, known, turns
 
 
-@partial(jax.jit, static_argnames=("config", "mode"))
-def _gyro_fold_errors(d, sd, kn, tv, aw, gw, kw, config: mp.MultiposConfig, mode: str) -> tuple:
-    """:func:`fair_multipos`'s gyro folds in one vmapped fit, scored: ``(acc_err (F, P), gyr_err (F, J),
-    turn_err (F, K))`` on the scored sections ``sd``. The data are arguments, not closure constants:
-    one compilation per shape, config and mode, not one per call (a closure compiled the imucal
-    session's folds in about 10 s each time)."""
+@partial(jax.jit, static_argnames=("config", "mode", "batch"))
+def _gyro_fold_errors(d, sd, kn, tv, aw, gw, kw, config: mp.MultiposConfig, mode: str, batch: int) -> tuple:
+    """:func:`fair_multipos`'s gyro folds, ``batch`` at a time in one ``vmap`` (``lax.map``; 1: one
+    after another, the CPU default of :func:`jaxcal.multipos.fold_batch`), scored: ``(acc_err (F, P),
+    gyr_err (F, J), turn_err (F, K))`` on the scored sections ``sd``. The data are arguments, not
+    closure constants: one compilation per shape, config, mode and batch, not one per call (a
+    closure compiled the imucal session's folds in about 10 s each time)."""
 
     def one(g, k):
         f = mp.fit_prepared(d, config, acc_w=aw, gyr_w=g, known=kn if mode == "closed" else None, known_w=k,
@@ -154,7 +155,7 @@ def _gyro_fold_errors(d, sd, kn, tv, aw, gw, kw, config: mp.MultiposConfig, mode
         return (mp.acc_norm_errors(f.acc, sd.pose_acc), mp.gyro_angle_errors(f.gyr, f.gsens, f.acc, sd),
                 mp.known_rotation_errors(f.gyr, f.gsens, f.acc, kn))
 
-    return jax.vmap(one)(gw, kw)
+    return jax.lax.map(lambda x: one(*x), (gw, kw), batch_size=batch if batch > 1 else None)
 
 
 @float64
@@ -165,7 +166,7 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
     Accelerometer on the faces' scored halves, the carried-gravity angle of each left-out motion
     (NaN for spans across a turn), the closure error of each left-out turn. The accelerometer is
     fitted on the faces only (the rests repeat three of their directions). All gyro folds are one
-    vmapped fit.
+    compiled fold loop.
 
     Args:
         fit_d, score_d, known, turns: from :func:`fair_data`.
@@ -183,7 +184,8 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
         gw, kw = np.zeros((1, gw.shape[1])), np.ones((1, kw.shape[1]))
     d, sd, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (fit_d, score_d, known, turns))
     aw = jnp.asarray(plan.is_face.astype(float))
-    ea, eg, ek = (np.asarray(x) for x in _gyro_fold_errors(d, sd, kn, tv, aw, jnp.asarray(gw), jnp.asarray(kw), config, mode))
+    ea, eg, ek = (np.asarray(x) for x in _gyro_fold_errors(d, sd, kn, tv, aw, jnp.asarray(gw), jnp.asarray(kw), config, mode,
+                                                                      mp.fold_batch(gw.shape[0])))
     eg_out = np.full(len(plan.spans), np.nan)
     if not motions:
         eg_out[scored[:M]] = eg[0, scored[:M]]
