@@ -31,13 +31,9 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxcal import multipos as mp  # noqa: E402
-from jaxcal.methods import multipos as mm  # noqa: E402
+from benchmarks.multipos_folds import XSENS, xsens_data  # noqa: E402
 from jaxcal.multipos.fit import FIT_COMPILER_OPTIONS, fit_prepared  # noqa: E402
 from jaxcal.multipos.heldout import fold_scores  # noqa: E402
-from jaxcal.recording import load_recording  # noqa: E402
-
-XSENS = ROOT / "data" / "imu_tk_xsens_multipos" / "xsens.npz"
 
 
 def _timed(lowered, args: tuple, options: dict, reps: int) -> tuple[dict, list[np.ndarray]]:
@@ -59,11 +55,7 @@ def _max_diff(a: list[np.ndarray], b: list[np.ndarray]) -> float:
 
 def measure(reps: int) -> dict:
     """Compile and run times of one fit and of the fold loop, XLA's defaults against the fit's options."""
-    rec = load_recording(XSENS)
-    opts = mm.MultiposOptions()
-    config, det = mm.multipos_config(rec, opts), mm.detect_options(rec, opts)
-    _, iv, _ = mp.detect_and_fit(rec.t, rec.acc, rec.gyr, config, detect=det, check=False)
-    data = mp.prepare(rec.t, rec.acc, rec.gyr, iv, gyr_limit=det.gyr_limit, midpoint=config.midpoint)
+    data, config = xsens_data()
     P = data.pose_acc.shape[0]
     out: dict = {"recording": str(XSENS.relative_to(ROOT)), "poses": P, "repetitions": reps, "options": FIT_COMPILER_OPTIONS}
     with jax.enable_x64(True):

@@ -38,13 +38,18 @@ from jaxcal.recording import load_recording  # noqa: E402
 XSENS = ROOT / "data" / "imu_tk_xsens_multipos" / "xsens.npz"
 
 
-def measure(reps: int) -> dict:
-    """Compile and run times of the Xsens folds at ``batch`` 40 and 1, and their largest difference."""
+def xsens_data() -> tuple[mp.MultiposData, mp.MultiposConfig]:
+    """The Xsens session's prepared poses and transitions and ``calibrate --method multipos``'s config."""
     rec = load_recording(XSENS)
     opts = mm.MultiposOptions()
     config, det = mm.multipos_config(rec, opts), mm.detect_options(rec, opts)
     _, iv, _ = mp.detect_and_fit(rec.t, rec.acc, rec.gyr, config, detect=det, check=False)
-    data = mp.prepare(rec.t, rec.acc, rec.gyr, iv, gyr_limit=det.gyr_limit, midpoint=config.midpoint)
+    return mp.prepare(rec.t, rec.acc, rec.gyr, iv, gyr_limit=det.gyr_limit, midpoint=config.midpoint), config
+
+
+def measure(reps: int) -> dict:
+    """Compile and run times of the Xsens folds at ``batch`` 40 and 1, and their largest difference."""
+    data, config = xsens_data()
     P = data.pose_acc.shape[0]
     out: dict = {"recording": str(XSENS.relative_to(ROOT)), "folds": P, "repetitions": reps}
     results = {}

@@ -375,15 +375,8 @@ def _linearized(
 
 def _linearized_baseline(kind: str, sensor: str, beta, theta, inp: Inputs, y) -> tuple[Float[Array, "N 3 B"], Float[Array, "N 3"]]:
     """:func:`_linearized` with the baseline's columns only (``theta`` held fixed):
-    ``(J_beta, y - model_output)``; compiled as :data:`linearized_baseline`.
-
-    Args:
-        kind: ``"diag"`` or ``"affine"`` (static).
-        sensor: ``"acc"`` or ``"gyr"`` (static).
-        beta: (B,) baseline parameters.
-        theta: (Q,) effect parameters.
-        inp: reference signals.
-        y: (N, 3) sensor output (physical units).
+    ``(J_beta, y - model_output)``; compiled as :data:`linearized_baseline`. Arguments as
+    :func:`_linearized`'s.
     """
     u = effects_forward(sensor, theta, inp)
     jb = jax.jacfwd(lambda b: baseline_apply(kind, b, u))(beta)
