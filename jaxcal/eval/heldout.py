@@ -184,8 +184,8 @@ def fair_multipos(fit_d, score_d, known, turns, plan: mp.TimeSplit, config: mp.M
         gw, kw = np.zeros((1, gw.shape[1])), np.ones((1, kw.shape[1]))
     d, sd, kn, tv = (jax.tree_util.tree_map(jnp.asarray, x) for x in (fit_d, score_d, known, turns))
     aw = jnp.asarray(plan.is_face.astype(float))
-    ea, eg, ek = (np.asarray(x) for x in _gyro_fold_errors(d, sd, kn, tv, aw, jnp.asarray(gw), jnp.asarray(kw), config, mode,
-                                                                      mp.fold_batch(gw.shape[0])))
+    errs = _gyro_fold_errors(d, sd, kn, tv, aw, jnp.asarray(gw), jnp.asarray(kw), config, mode, mp.fold_batch(gw.shape[0]))
+    ea, eg, ek = (np.asarray(x) for x in errs)
     eg_out = np.full(len(plan.spans), np.nan)
     if not motions:
         eg_out[scored[:M]] = eg[0, scored[:M]]
