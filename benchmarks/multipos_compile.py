@@ -6,8 +6,8 @@ On the Xsens multi-position session (``data/imu_tk_xsens_multipos``, 40 poses), 
 one run with the persistent cache off, :func:`jaxcal.multipos.fit_prepared` (one fit, what
 ``calibrate --method multipos``, the field path's rest fits and the in-sample scores run) and
 :func:`jaxcal.multipos.heldout.fold_scores` (the leave-one-pose-out loop, one fold after another)
-twice each: with XLA's defaults and with :data:`jaxcal.multipos.fit.FIT_COMPILER_OPTIONS`. Each
-compiled function then runs ``reps`` times (median, each ended by ``block_until_ready``); the
+twice each: with XLA's defaults and with :data:`jaxcal.multipos.fit.FIT_COMPILER_OPTIONS`, each
+compiled ``reps`` times and run ``reps`` times (medians; each run ended by ``block_until_ready``); the
 largest difference between the two results is reported. A single fit runs in milliseconds and
 compiles in seconds, so fewer optimisation passes pay there; the fold loop runs the fit 40 times
 and keeps them. Writes ``results/multipos_compile.json``.
@@ -36,17 +36,24 @@ from jaxcal.multipos.fit import FIT_COMPILER_OPTIONS, fit_prepared  # noqa: E402
 from jaxcal.multipos.heldout import fold_scores  # noqa: E402
 
 
-def _timed(lowered, args: tuple, options: dict, reps: int) -> tuple[dict, list[np.ndarray]]:
-    """Compile ``lowered`` with ``options``, run it ``reps`` times: times and the result's leaves."""
-    t0 = time.perf_counter()
-    compiled = lowered.compile(compiler_options=options)
-    compile_s = time.perf_counter() - t0
+def _timed(lower, args: tuple, options: dict, reps: int) -> tuple[dict, list[np.ndarray]]:
+    """Lower (``lower()``) and compile with ``options`` ``reps`` times, jax's in-memory caches
+    cleared before each (the persistent cache is off, so each compile is a real one), then run the
+    last ``reps`` times: median times and the result's leaves."""
+    cs = []
+    for _ in range(reps):
+        jax.clear_caches()
+        lowered = lower()
+        t0 = time.perf_counter()
+        compiled = lowered.compile(compiler_options=options)
+        cs.append(time.perf_counter() - t0)
     ts = []
     for _ in range(reps):
         t0 = time.perf_counter()
         res = jax.block_until_ready(compiled(*args))
         ts.append(time.perf_counter() - t0)
-    return {"compile_s": compile_s, "run_s": statistics.median(ts), "run_s_all": ts}, [np.asarray(x) for x in jax.tree_util.tree_leaves(res)]
+    return ({"compile_s": statistics.median(cs), "compile_s_all": cs, "run_s": statistics.median(ts), "run_s_all": ts},
+            [np.asarray(x) for x in jax.tree_util.tree_leaves(res)])
 
 
 def _max_diff(a: list[np.ndarray], b: list[np.ndarray]) -> float:
@@ -62,11 +69,15 @@ def measure(reps: int) -> dict:
         d = jax.tree_util.tree_map(jnp.asarray, data)
         aw = jnp.asarray(1.0 - np.eye(P))
         gw = jnp.asarray(1.0 - np.eye(P)[:, : P - 1])
-        fit = jax.jit(fit_prepared, static_argnames=("config",)).lower(d, config)
-        folds = fold_scores.lower(d, config, aw, gw, 1)
-        for name, lowered, args in (("one_fit", fit, (d,)), ("fold_loop", folds, (d, aw, gw))):
-            base, r0 = _timed(lowered, args, {}, reps)
-            fast, r1 = _timed(lowered, args, FIT_COMPILER_OPTIONS, reps)
+        def fit():
+            return jax.jit(fit_prepared, static_argnames=("config",)).lower(d, config)
+
+        def folds():
+            return fold_scores.lower(d, config, aw, gw, 1)
+
+        for name, lower, args in (("one_fit", fit, (d,)), ("fold_loop", folds, (d, aw, gw))):
+            base, r0 = _timed(lower, args, {}, reps)
+            fast, r1 = _timed(lower, args, FIT_COMPILER_OPTIONS, reps)
             out[name] = {"defaults": base, "fit_options": fast, "max_abs_diff": _max_diff(r0, r1),
                          "compile_ratio": base["compile_s"] / fast["compile_s"], "run_ratio": fast["run_s"] / base["run_s"],
                          "total_saved_s": base["compile_s"] + base["run_s"] - fast["compile_s"] - fast["run_s"]}
@@ -77,7 +88,7 @@ def measure(reps: int) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--reps", type=int, default=5, help="timed runs of each compiled function (median reported)")
+    ap.add_argument("--reps", type=int, default=3, help="compiles and timed runs of each function (medians reported)")
     ap.add_argument("--json", type=Path, default=ROOT / "results" / "multipos_compile.json", help="JSON output path")
     a = ap.parse_args()
     jax.config.update("jax_enable_compilation_cache", False)  # real compile times

@@ -207,11 +207,11 @@ def fit_prepared(
 
 
 #: XLA options of :data:`fit_prepared_jit`. One multipos fit is compile-bound: on the Xsens session
-#: (40 poses) it compiled in 3.44 s and ran in 210 ms; without the backend's optimisation passes it
-#: compiles in 2.21 s and runs in 296 ms (1.15 s saved per compile; largest difference in the result
-#: 2.1e-8, in raw counts), ``python -m benchmarks.multipos_compile``. A fold loop runs the fit many
-#: times and keeps the passes (:func:`jaxcal.multipos.heldout.fold_scores`: 40 folds, 3.3 s compile +
-#: 5.6 s against 2.4 s + 13.2 s).
+#: (40 poses) it compiled in 2.78 s and ran in 182 ms; without the backend's optimisation passes it
+#: compiles in 1.73 s and runs in 294 ms (0.94 s saved per compile; largest difference in the result
+#: 2.1e-8, in raw counts; medians of 3, ``python -m benchmarks.multipos_compile``). A fold loop runs
+#: the fit many times and keeps the passes (:func:`jaxcal.multipos.heldout.fold_scores`: 40 folds,
+#: 3.1 s compile + 3.9 s against 1.9 s + 12.7 s).
 FIT_COMPILER_OPTIONS = {"xla_backend_optimization_level": 0}
 
 #: :func:`fit_prepared` jitted, ``config`` static: ``fit_prepared_jit(data, config, acc_w=..., ...)``
