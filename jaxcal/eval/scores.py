@@ -159,7 +159,7 @@ def score_insample(data: mp.MultiposData, config: mp.MultiposConfig) -> dict:
         config: :class:`~jaxcal.multipos.MultiposConfig` (static: a new config recompiles).
     """
     d = jax.tree_util.tree_map(jnp.asarray, data)
-    fit = mp.fit_prepared_jit(d, config)
+    fit = mp.fit_prepared_numpy(data, config)  # the compiled fit the other callers share
     ea = np.asarray(mp.acc_norm_errors(fit.acc, d.pose_acc))
     eg = np.asarray(mp.gyro_angle_errors_jit(fit.gyr, fit.gsens, fit.acc, d))
     return summarise(ea, np.where(np.asarray(data.seg_ok), eg, np.nan), "IN-SAMPLE (fitted on all poses)")

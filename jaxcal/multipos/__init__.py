@@ -77,7 +77,7 @@ from jaxcal.multipos.detect import (
     fit_summary,
     rest_design_sv,
 )
-from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_multipos, fit_prepared, fit_prepared_jit
+from jaxcal.multipos.fit import MultiposConfig, MultiposFit, fit_multipos, fit_prepared, fit_prepared_jit, fit_prepared_numpy
 from jaxcal.multipos.gyro import (
     block_rotvecs,
     carry_rotation,
@@ -105,7 +105,7 @@ __all__ = [
     "MultiposData", "KnownRotations", "VerticalTurns", "prepare", "prepare_known", "prepare_turns",
     "turns_from_times", "OBSERVABLE_TOL",
     # fits and configuration
-    "MultiposConfig", "MultiposFit", "DatasheetPrior", "MPU6050_PRIOR", "fit_prepared", "fit_prepared_jit",
+    "MultiposConfig", "MultiposFit", "DatasheetPrior", "MPU6050_PRIOR", "fit_prepared", "fit_prepared_jit", "fit_prepared_numpy",
     "fit_multipos", "fit_acc", "fit_acc_determined", "rest_gsens",
     # recordings
     "DetectOptions", "detect_and_fit", "detect_rests", "fit_multipos_recording", "fit_multipos_recording_gsens", "fit_summary",

@@ -259,5 +259,7 @@ def fit_prepared_numpy(data: MultiposData, config: MultiposConfig = MultiposConf
     """
     d = jax.tree_util.tree_map(jnp.asarray, data)
     tv = None if turns is None else jax.tree_util.tree_map(jnp.asarray, turns)
-    fit = fit_prepared_jit(d, config, turns=tv)
+    P = d.pose_acc.shape[0]
+    # the weights passed as arrays, as the field path and the scores pass theirs: one compiled fit for all
+    fit = fit_prepared_jit(d, config, acc_w=jnp.ones(P, d.pose_acc.dtype), gyr_w=jnp.ones(P - 1, d.pose_acc.dtype), turns=tv)
     return jax.tree_util.tree_map(np.asarray, fit)
