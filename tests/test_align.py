@@ -99,7 +99,10 @@ def test_cli_align_writes_the_conventions_files(rig, tmp_path, monkeypatch, caps
     p = tmp_path / "rig.npz"
     save_recording(srec, p)
     assert main(["align", str(p), "--out", str(tmp_path / "al"), "--clock-windows", "3"]) == 0
-    assert "one clock skew holds" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "one clock skew holds" in err
+    # the skew's interval is printed; checked by the windows, without the hint to check it
+    assert "clock skew" in err and "--clock-windows 4 tests" not in err
     a = json.loads((tmp_path / "al" / "align.json").read_text())
     assert len(a["clock_check"]["windows"]) == 3 and a["clock_check"]["line"]["slope_ppm"] == pytest.approx(2.0)
     # one line holds the steady windows (scale 1), so the widened interval is the single skew's own 1.96 se
@@ -159,3 +162,14 @@ def test_cli_and_library_give_one_report_on_tumvi(tmp_path):
         blank.pop(k)
     save_recording(recording_from_dict(blank), tmp_path / "blank.npz")
     assert main(["diagnose", str(tmp_path / "blank.npz"), "--out", str(tmp_path / "d2")]) == 0
+
+
+def test_the_skew_line_says_when_one_clock_rate_is_assumed():
+    """Without ``--clock-windows`` the printed skew interval says what it assumes and how to test it."""
+    from jaxcal.cli.diagnose import skew_line
+
+    a = {"clock_skew": 1.1, "stderr": {"clock_skew": 0.43}}
+    assert skew_line(a, True) == "clock skew +1.10 +- 0.84 ppm (95 %)"
+    assert skew_line(a, False).startswith("clock skew +1.10 +- 0.84 ppm (95 %), if one clock rate holds")
+    assert "--clock-windows 4" in skew_line(a, False)
+    assert skew_line({"clock_skew": None, "stderr": {}}, False) == ""
