@@ -25,6 +25,7 @@ from jaxcal.arrays import Array
 from jaxcal.mat3 import matmul3, matvec3, transpose3
 
 __all__ = [
+    "angle_between",
     "hat",
     "vee",
     "exp_so3",
@@ -178,6 +179,16 @@ def slerp_pairs(q0: Float[np.ndarray, "N 4"], q1: Float[np.ndarray, "N 4"], u: F
     w1 = np.where(small, u, np.sin(u * th) / np.where(small, 1, s))
     q = w0 * q0 + w1 * q1
     return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def angle_between(a: Float[Array, "... 3"], b: Float[Array, "... 3"]) -> Float[Array, "..."]:
+    """Angle (rad, in ``[0, pi]``) between vectors of any length: ``atan2(|a x b|, a . b)``.
+
+    Accurate at every angle, unlike ``arccos`` of the normalised dot product, whose resolution near 0
+    is ``sqrt(2 eps)`` (1.5e-8 rad in float64: one rounding of the cosine reads as 1.5e-8 rad). Not
+    differentiable where the vectors are parallel (the norm of a zero cross product).
+    """
+    return jnp.arctan2(jnp.linalg.norm(jnp.cross(a, b), axis=-1), jnp.sum(a * b, axis=-1))
 
 
 def log_so3(r: Float[Array, "... 3 3"]) -> Float[Array, "... 3"]:

@@ -18,7 +18,7 @@ from jaxtyping import Float
 from jaxcal.arrays import Array
 from jaxcal.multipos.acc import DatasheetPrior, prior_rows
 from jaxcal.multipos.data import KnownRotations, MultiposData, VerticalTurns, calibrated_acc_sums
-from jaxcal.rotation import exp_so3, log_so3
+from jaxcal.rotation import angle_between, exp_so3, log_so3
 from jaxcal.sensor import LinearCal
 
 __all__ = [
@@ -278,8 +278,7 @@ def gyro_angle_errors(
     rv = block_rotvecs(gyr.A, gyr.b, gsens, data, calibrated_acc_sums(acc, data))
     r = carry_rotation(rv, jnp.ones_like(data.sdt))
     pred = jnp.einsum("jba,jb->ja", r, u[:-1])
-    c = jnp.sum(pred * u[1:], -1) / jnp.linalg.norm(pred, axis=-1)
-    return jnp.arccos(jnp.clip(c, -1.0, 1.0))
+    return angle_between(pred, u[1:])
 
 
 #: :func:`gyro_angle_errors` compiled, for callers outside a trace (scores, rest detection, the field
