@@ -14,8 +14,8 @@ from helpers import exp_so3_np as _exp_np
 
 from jaxcal import multipos as mp
 from jaxcal.multipos.acc import AccArgs, acc_residuals
-from jaxcal.multipos.data import calibrated_acc_sums, padded_blocks
-from jaxcal.multipos.gyro import GyroArgs, carry_rotation, gyr_residuals, turn_init
+from jaxcal.multipos.data import calibrated_acc_sums
+from jaxcal.multipos.gyro import GyroArgs, gyr_residuals, turn_init
 from jaxcal.recording import Recording, load_recording
 from jaxcal.rotation import matrix_from_quat
 from jaxcal.sensor import LinearCal
@@ -665,20 +665,3 @@ def test_held_out_skips_poses_whose_fold_is_undetermined():
     assert alone.sum() == 3 and ho["not_held_out"] == {"poses": np.flatnonzero(alone).tolist(), "transitions": []}
     assert ho["acc_rms_mg"] < 1.0, ho
     assert "leave-one-pose-out, 10 poses, 12 transitions; 3 poses not held out" in ho["how"], ho
-
-
-def test_transitions_pad_to_a_power_of_two_of_blocks_that_carry_nothing():
-    """``prepare`` pads every recording's transitions to a power of two of blocks (one compiled fit
-    for recordings of similar motions). A padding block is zeros, and its rotation is exactly the
-    identity: the carried rotation is bit-equal with and without it (carry_rotation's own product
-    tree pads to the same power of two with identities)."""
-    assert [padded_blocks(n) for n in (0, 1, 2, 3, 4, 5, 63, 64, 65)] == [1, 1, 2, 4, 4, 8, 64, 64, 128]
-    rng = np.random.default_rng(3)
-    w, dt = rng.normal(0.0, 2.0, (4, 5, 3)), rng.uniform(0.005, 0.02, (4, 5))
-    padded = carry_rotation(jnp.asarray(np.concatenate([w, np.zeros((4, 3, 3))], 1)),
-                            jnp.asarray(np.concatenate([dt, np.zeros((4, 3))], 1)))
-    np.testing.assert_array_equal(np.asarray(padded), np.asarray(carry_rotation(jnp.asarray(w), jnp.asarray(dt))))
-    t = np.arange(300) * 0.01
-    iv = np.array([[0, 40], [100, 140], [223, 300]])  # motions of 60 and 83 samples: 8 and 11 blocks of 8
-    d = mp.prepare(t, rng.normal(size=(300, 3)), rng.normal(size=(300, 3)), iv)
-    assert d.sy.shape == (2, 16, 3) and not np.any(np.asarray(d.sdt)[:, 11:])

@@ -33,7 +33,6 @@ __all__ = [
     "prepare_turns",
     "turns_from_times",
     "calibrated_acc_sums",
-    "padded_blocks",
 ]
 
 #: relative singular value below which a parameter combination counts as undetermined by the poses
@@ -65,24 +64,13 @@ class MultiposData(NamedTuple):
     seg_ok: Bool[Array, " J"]  # False: transition unusable (saturated gyro)
 
 
-def padded_blocks(n: int) -> int:
-    """The block count a recording's transitions are padded to: the next power of two of the
-    longest's ``n`` (at least 1). A padding block is all zeros, a rotation of exactly the identity
-    (:func:`jaxcal.multipos.gyro.carry_rotation` pads its product tree to a power of two anyway),
-    so the fit is the same; but recordings whose longest motion differs by less than a factor of two
-    share one shape, and so one compiled fit (a multipos fit compiles in 2-5 s on a CPU and runs in a
-    fraction of a second)."""
-    return 1 << max(0, int(np.ceil(np.log2(max(int(n), 1)))))
-
-
 def _segment_sums(
     t: np.ndarray, acc: np.ndarray, gyr: np.ndarray, spans: list, midpoint: bool, block: int, gyr_limit: float | None
 ) -> tuple[dict, np.ndarray, np.ndarray]:
     """Block sums (see :class:`MultiposData`) of the integration spans ``[a, b]`` (sample ``a`` to
-    sample ``b``), padded to a common number of blocks, a power of two (:func:`padded_blocks`); and
-    the usable flag of each span."""
+    sample ``b``), padded to a common number of blocks; and the usable flag of each span."""
     J = len(spans)
-    L = padded_blocks(int(max(-(-(b - a) // block) for a, b in spans)))
+    L = max(1, max(-(-(b - a) // block) for a, b in spans))
     out = {k: np.zeros((J, L, 3)) for k in ("sy", "c0", "p1", "p2", "sacc")}
     sdt = np.zeros((J, L))
     seg_ok = np.ones(J, bool)
