@@ -15,8 +15,6 @@ and keeps them. Writes ``results/multipos_compile.json``.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import statistics
 import sys
@@ -31,7 +29,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from benchmarks.multipos_folds import XSENS, xsens_data  # noqa: E402
+from benchmarks.multipos_folds import XSENS, run_cli, xsens_data  # noqa: E402
 from jaxcal.multipos.fit import FIT_COMPILER_OPTIONS, fit_prepared  # noqa: E402
 from jaxcal.multipos.heldout import fold_scores  # noqa: E402
 
@@ -87,20 +85,14 @@ def measure(reps: int) -> dict:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--reps", type=int, default=3, help="compiles and timed runs of each function (medians reported)")
-    ap.add_argument("--json", type=Path, default=ROOT / "results" / "multipos_compile.json", help="JSON output path")
-    a = ap.parse_args()
-    jax.config.update("jax_enable_compilation_cache", False)  # real compile times
-    out = measure(a.reps)
-    a.json.parent.mkdir(parents=True, exist_ok=True)
-    a.json.write_text(json.dumps(out, indent=1) + "\n")
+    out, path = run_cli(__doc__, measure, 3, "compiles and timed runs of each function (medians reported)",
+                        "multipos_compile.json")
     for name in ("one_fit", "fold_loop"):
         r = out[name]
         b, f = r["defaults"], r["fit_options"]
         print(f"{name}: compile {b['compile_s']:.2f} -> {f['compile_s']:.2f} s, run {1e3 * b['run_s']:.1f} -> "
               f"{1e3 * f['run_s']:.1f} ms, saved {r['total_saved_s']:+.2f} s, max difference {r['max_abs_diff']:.2g}")
-    print(f"{out['poses']} poses; wrote {a.json}")
+    print(f"{out['poses']} poses; wrote {path}")
 
 
 if __name__ == "__main__":

@@ -79,20 +79,28 @@ def measure(reps: int) -> dict:
     return out
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--reps", type=int, default=5, help="timed runs of each compiled function (median reported)")
-    ap.add_argument("--json", type=Path, default=ROOT / "results" / "multipos_folds.json", help="JSON output path")
+def run_cli(doc: str, measure_fn, default_reps: int, reps_help: str, json_name: str) -> tuple[dict, Path]:
+    """The multipos benchmarks' command line (this one and ``benchmarks.multipos_compile``): ``--reps``
+    and ``--json``, the persistent compilation cache off (real compile times), ``measure_fn(reps)``'s
+    result written as JSON. Returns the result and the path written."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--reps", type=int, default=default_reps, help=reps_help)
+    ap.add_argument("--json", type=Path, default=ROOT / "results" / json_name, help="JSON output path")
     a = ap.parse_args()
     jax.config.update("jax_enable_compilation_cache", False)  # real compile times
-    out = measure(a.reps)
+    out = measure_fn(a.reps)
     a.json.parent.mkdir(parents=True, exist_ok=True)
     a.json.write_text(json.dumps(out, indent=1) + "\n")
+    return out, a.json
+
+
+def main() -> None:
+    out, path = run_cli(__doc__, measure, 5, "timed runs of each compiled function (median reported)", "multipos_folds.json")
     v, s = out["vmap_all"], out["one_after_another"]
     print(f"{out['folds']} folds: one vmap run {v['run_s']:.2f} s (compile {v['compile_s']:.1f} s), one after another "
           f"{s['run_s']:.2f} s (compile {s['compile_s']:.1f} s): run ratio {out['run_ratio']:.2f}x, compile ratio "
           f"{out['compile_ratio']:.2f}x; max difference acc {out['max_abs_diff']['acc_g']:.2g} g, gyr "
-          f"{out['max_abs_diff']['gyr_rad']:.2g} rad; wrote {a.json}")
+          f"{out['max_abs_diff']['gyr_rad']:.2g} rad; wrote {path}")
 
 
 if __name__ == "__main__":
