@@ -8,6 +8,9 @@ rms, each sensor's final held-out rms is at most its baseline's, every named est
 ``jaxcal.diagnose.diagnose_recording`` is wrapped here, before any test module imports it, so a
 test that produces a report breaking the promise fails, whatever it asserts itself.
 
+Every annotated ``jaxcal`` function is type- and shape-checked at run time (``tests/typecheck.py``,
+installed here before anything imports ``jaxcal``).
+
 Precision is set here once: a test that needs 64-bit JAX takes the :func:`x64` fixture (as an
 argument or ``@pytest.mark.usefixtures("x64")``) instead of opening ``jax.enable_x64`` itself.
 """
@@ -16,12 +19,16 @@ import functools
 import gc
 import os
 
-import jax
-import margins
-import pytest
+import typecheck  # isort: skip  (before the first jaxcal import: the hook checks what is imported after it)
 
-import jaxcal.diagnose as _diagnose
-from jaxcal.diagnose.report import promise_violations
+typecheck.install(["jaxcal"])
+
+import jax  # noqa: E402
+import margins  # noqa: E402
+import pytest  # noqa: E402
+
+import jaxcal.diagnose as _diagnose  # noqa: E402
+from jaxcal.diagnose.report import promise_violations  # noqa: E402
 
 # The CLI keeps compiled code in the user's cache folder unless told otherwise: tests never write there
 # (`make test` sets JAX_COMPILATION_CACHE_DIR to the checkout's .jax_cache; a bare pytest run uses none).
